@@ -1,0 +1,59 @@
+# VLA-GR: `make demo` runs the main job, `make test` runs the test suite.
+# Both set everything up on a fresh machine (idempotent; quick when done).
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+PIP := $(PY) -m pip
+STAMP := $(VENV)/.installed
+APT_STAMP := $(VENV)/.apt-installed
+APT_PACKAGES := libosmesa6 libegl1 libegl-mesa0 libgl1-mesa-dri
+export MUJOCO_GL ?= egl
+export PYOPENGL_PLATFORM ?= egl
+export HF_HUB_OFFLINE ?= 1
+
+.PHONY: setup apt demo test test-slow lint format bench clean
+
+setup: $(STAMP)
+
+# Headless MuJoCo rendering needs Mesa's EGL/OSMesa. Installed only when running
+# as root on Debian/Ubuntu and not already present.
+$(APT_STAMP):
+	@mkdir -p $(VENV)
+	@if [ "$$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then \
+	  if ! dpkg -s $(APT_PACKAGES) >/dev/null 2>&1; then \
+	    echo "installing $(APT_PACKAGES)"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $(APT_PACKAGES); \
+	  fi; \
+	else echo "not root on Debian: make sure $(APT_PACKAGES) (or equivalents) are installed"; fi
+	@touch $@
+
+$(STAMP): pyproject.toml constraints.txt $(APT_STAMP)
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PIP) install -q --upgrade pip
+	$(PIP) install -q -c constraints.txt torch==2.13.0
+	$(PIP) install -q -c constraints.txt -e ".[dev,text]"
+	@touch $@
+
+demo: setup
+	$(VENV)/bin/vla-gr demo
+
+test: setup
+	$(PY) -m pytest -q -n 2 --dist loadfile
+
+test-slow: setup
+	$(PY) -m pytest -q -m slow
+
+lint: setup
+	$(VENV)/bin/ruff check src tests benchmarks
+	$(VENV)/bin/ruff format --check src tests benchmarks
+
+format: setup
+	$(VENV)/bin/ruff check --fix src tests benchmarks
+	$(VENV)/bin/ruff format src tests benchmarks
+
+bench: setup
+	$(PY) benchmarks/bench_env.py
+
+clean:
+	rm -rf $(VENV) outputs .pytest_cache

@@ -1,0 +1,111 @@
+"""Structured configuration: dataclasses registered in Hydra's ConfigStore.
+
+YAML files in this folder only compose these; every field has a default and is
+validated on construction (``__post_init__``), so a bad value fails before any work
+with a message naming the key and the valid choices.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from hydra.core.config_store import ConfigStore
+
+SPLITS = ("train", "val", "test")
+
+
+def check_choice(key: str, value, choices) -> None:
+    """Raise ValueError naming ``key`` when ``value`` is not one of ``choices``."""
+    if value not in choices:
+        raise ValueError(f"{key}={value!r} is not valid; choose one of {list(choices)}")
+
+
+def check_positive(key: str, value, allow_zero: bool = False) -> None:
+    """Raise ValueError naming ``key`` when ``value`` is not > 0 (or >= 0)."""
+    ok = value >= 0 if allow_zero else value > 0
+    if not ok:
+        raise ValueError(f"{key}={value!r} must be {'>= 0' if allow_zero else '> 0'}")
+
+
+@dataclass
+class EnvConfig:
+    """The ObjectNav world (see ``vla_gr.envs``)."""
+
+    split: str = "val"
+    image_size: int = 64
+    control_hz: float = 10.0
+    max_episode_steps: int = 1000
+    success_distance: float = 1.0
+    semantic: bool = False
+    episodes: str | None = None  # optional JSONL file of episode specs
+
+    def __post_init__(self) -> None:
+        check_choice("env.split", self.split, SPLITS)
+        if not 16 <= self.image_size <= 512:
+            raise ValueError(f"env.image_size={self.image_size} must be in [16, 512]")
+        check_positive("env.control_hz", self.control_hz)
+        check_positive("env.max_episode_steps", self.max_episode_steps)
+        check_positive("env.success_distance", self.success_distance)
+
+
+@dataclass
+class ExpertConfig:
+    """The geodesic expert and its DART-style noise injection."""
+
+    noise_std: float = 0.0  # std of Gaussian noise added to the executed (v, w) fractions
+    noise_prob: float = 0.0  # probability per step of a noisy excursion
+
+    def __post_init__(self) -> None:
+        check_positive("expert.noise_std", self.noise_std, allow_zero=True)
+        if not 0.0 <= self.noise_prob <= 1.0:
+            raise ValueError(f"expert.noise_prob={self.noise_prob} must be in [0, 1]")
+
+
+@dataclass
+class CollectConfig:
+    """``vla-gr collect``: expert episodes into a zarr store."""
+
+    split: str = "train"
+    num_episodes: int = 32
+    first_episode: int = 0
+    workers: int = 2
+    output: str = "data/expert_${collect.split}.zarr"
+    mode: str = "refuse"  # what to do when the store exists: refuse | append | overwrite
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        check_choice("collect.split", self.split, SPLITS)
+        check_positive("collect.num_episodes", self.num_episodes)
+        check_positive("collect.first_episode", self.first_episode, allow_zero=True)
+        check_positive("collect.workers", self.workers)
+        check_choice("collect.mode", self.mode, ("refuse", "append", "overwrite"))
+
+
+@dataclass
+class DemoConfig:
+    """``vla-gr demo``: a few episodes, a metrics table, a GIF and a top-down PNG."""
+
+    split: str = "val"
+    num_episodes: int = 3
+    output_dir: str = "outputs/demo"
+    gif_image_size: int = 128
+
+    def __post_init__(self) -> None:
+        check_choice("demo.split", self.split, SPLITS)
+        check_positive("demo.num_episodes", self.num_episodes)
+
+
+@dataclass
+class VLAGRConfig:
+    """Root of every recipe."""
+
+    seed: int = 0
+    env: EnvConfig = field(default_factory=EnvConfig)
+    expert: ExpertConfig = field(default_factory=ExpertConfig)
+    collect: CollectConfig = field(default_factory=CollectConfig)
+    demo: DemoConfig = field(default_factory=DemoConfig)
+
+
+def register_configs() -> None:
+    """Register the schema under the name ``base_config`` (idempotent)."""
+    ConfigStore.instance().store(name="base_config", node=VLAGRConfig)
