@@ -1,10 +1,10 @@
 """Pure grid and camera maths shared by the world (ground truth) and the GR field."""
 
+from vla_gr.geometry.fast_marching import geodesic_distance
 from vla_gr.geometry.grid import (
     GridSpec,
     disk_kernel,
     inflate_obstacles,
 )
-from vla_gr.geometry.fast_marching import geodesic_distance
 
 __all__ = ["GridSpec", "disk_kernel", "inflate_obstacles", "geodesic_distance"]

@@ -77,6 +77,9 @@ def geodesic_distance(
     if template is not None:
         import torch
 
-        return torch.as_tensor(travel, dtype=template.dtype if template.is_floating_point()
-                               else torch.float32, device=template.device)
+        return torch.as_tensor(
+            travel,
+            dtype=template.dtype if template.is_floating_point() else torch.float32,
+            device=template.device,
+        )
     return travel

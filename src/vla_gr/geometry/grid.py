@@ -52,7 +52,9 @@ class GridSpec:
         """Boolean (...,) mask of cells inside the grid."""
         rc = np.asarray(rc)
         return (
-            (rc[..., 0] >= 0) & (rc[..., 0] < self.height) & (rc[..., 1] >= 0)
+            (rc[..., 0] >= 0)
+            & (rc[..., 0] < self.height)
+            & (rc[..., 1] >= 0)
             & (rc[..., 1] < self.width)
         )
 
