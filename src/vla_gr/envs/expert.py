@@ -1,0 +1,322 @@
+"""Privileged geodesic expert for ObjectNav, with DART-style noise injection.
+
+The expert reads ground truth from ``env.unwrapped`` (house, goal, distance fields, robot
+pose), plans on a clearance-penalised cost field (so it keeps away from walls and corners),
+extracts the path by steepest descent, follows it with pure pursuit on a lookahead point that
+stays in line of sight, and near the goal turns to face the object before calling STOP.
+
+With noise, :meth:`GeodesicExpert.act` returns a perturbed action to EXECUTE (Gaussian on
+v/w plus occasional short random excursions) while :attr:`GeodesicExpert.last_label` holds the
+noise-free expert action for the same observation, the pair a DART dataset stores.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from vla_gr.envs.geodesic import ROBOT_RADIUS, sample_field
+from vla_gr.geometry import GridSpec, geodesic_distance
+
+logger = logging.getLogger(__name__)
+
+__all__ = [
+    "ExpertConfig",
+    "GeodesicExpert",
+    "wrap_angle",
+    "clearance_cost",
+    "descend_path",
+    "lookahead_point",
+    "pursuit_command",
+]
+
+# 8-neighbour offsets (d_row, d_col) and their lengths in cells.
+_NEIGHBOURS = np.array([(-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)])
+_STEP_LEN = np.linalg.norm(_NEIGHBOURS, axis=1)  # (8,)
+
+
+# ----------------------------------------------------------------------------- pure pieces
+
+
+def wrap_angle(angle: float) -> float:
+    """Angle wrapped to [-pi, pi)."""
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def clearance_cost(
+    occupancy: np.ndarray,
+    cell_size: float,
+    robot_radius: float = ROBOT_RADIUS,
+    margin: float = 0.3,
+    weight: float = 6.0,
+    contact_cost: float = 500.0,
+) -> np.ndarray:
+    """Cost per metre (H, W) that penalises cells near obstacles.
+
+    ``clearance`` = distance from a cell to the nearest occupied cell minus ``robot_radius``.
+    Cost is ``1 + weight * (1 - clearance / margin)^2`` for 0 <= clearance < margin, 1 beyond,
+    and ``contact_cost`` where the robot would overlap an obstacle (clearance < 0), so a
+    descent that starts there still leads out. Occupied cells get ``inf``-like cost via the
+    caller's obstacle mask.
+
+    Args:
+        occupancy: (H, W) bool, True where an obstacle is.
+    Returns:
+        cost (H, W) float64 >= 1.
+    """
+    if cell_size <= 0 or margin <= 0:
+        raise ValueError(f"cell_size and margin must be > 0, got {cell_size}, {margin}")
+    occupancy = np.asarray(occupancy, dtype=bool)
+    if not occupancy.any():
+        return np.ones(occupancy.shape)
+    clearance = ndimage.distance_transform_edt(~occupancy) * cell_size - robot_radius  # (H, W)
+    near = np.clip(1.0 - clearance / margin, 0.0, 1.0)  # (H, W)
+    cost = 1.0 + weight * near**2  # (H, W)
+    return np.where(clearance < 0.0, contact_cost, cost)
+
+
+def descend_path(
+    field: np.ndarray, grid: GridSpec, start_xy: np.ndarray, max_length: float
+) -> np.ndarray:
+    """Steepest 8-neighbour descent of ``field`` (H, W) from ``start_xy`` (2,).
+
+    Returns world points (N, 2): the start, then cell centres with strictly decreasing field
+    values, until the field reaches 0 (a source), no neighbour is lower, or the path is
+    ``max_length`` metres long.
+    """
+    rc = grid.world_to_cell(np.asarray(start_xy, dtype=np.float64))  # (2,)
+    r = int(np.clip(rc[0], 0, grid.height - 1))
+    c = int(np.clip(rc[1], 0, grid.width - 1))
+    points = [np.asarray(start_xy, dtype=np.float64)[:2]]
+    length = 0.0
+    rows, cols = field.shape
+    while length < max_length and field[r, c] > 0.0:
+        rr = r + _NEIGHBOURS[:, 0]  # (8,)
+        cc = c + _NEIGHBOURS[:, 1]  # (8,)
+        ok = (rr >= 0) & (rr < rows) & (cc >= 0) & (cc < cols)
+        values = np.full(8, np.inf)
+        values[ok] = field[rr[ok], cc[ok]]
+        if np.isfinite(field[r, c]):
+            # Prefer the steepest slope, not just the lowest value (diagonals are longer).
+            k = int(np.argmin((values - field[r, c]) / _STEP_LEN))  # of (8,)
+        else:  # started off the field (inside an obstacle cell): step to the lowest neighbour
+            k = int(np.argmin(values))
+        if not values[k] < field[r, c]:
+            break
+        r, c = int(rr[k]), int(cc[k])
+        length += _STEP_LEN[k] * grid.cell_size
+        points.append(grid.cell_to_world(np.array([r, c])))
+    return np.stack(points)  # (N, 2)
+
+
+def segment_is_free(free: np.ndarray, grid: GridSpec, a: np.ndarray, b: np.ndarray) -> bool:
+    """True if every cell sampled along segment a (2,) -> b (2,) is True in ``free`` (H, W)."""
+    n = max(2, int(np.ceil(np.linalg.norm(b - a) / (0.5 * grid.cell_size))) + 1)
+    t = np.linspace(0.0, 1.0, n)[:, None]  # (n, 1)
+    rc = grid.world_to_cell(a[None] * (1 - t) + b[None] * t)  # (n, 2)
+    inside = grid.in_bounds(rc)
+    if not inside.all():
+        return False
+    return bool(free[rc[:, 0], rc[:, 1]].all())
+
+
+def lookahead_point(
+    path: np.ndarray, lookahead: float, free: np.ndarray | None = None, grid: GridSpec | None = None
+) -> np.ndarray:
+    """Point (2,) on ``path`` (N, 2) at arc length ``lookahead`` from its start.
+
+    If ``free`` (H, W) and ``grid`` are given, the point is pulled back along the path until
+    the straight segment from the start to it stays inside ``free`` (line of sight).
+    """
+    if len(path) == 1:
+        return path[0].copy()
+    seg = np.linalg.norm(np.diff(path, axis=0), axis=1)  # (N-1,)
+    arc = np.concatenate([[0.0], np.cumsum(seg)])  # (N,)
+    k = int(np.searchsorted(arc, lookahead))
+    k = min(max(k, 1), len(path) - 1)
+    if free is not None and grid is not None:
+        while k > 1 and not segment_is_free(free, grid, path[0], path[k]):
+            k -= 1
+    return path[k].copy()
+
+
+def pursuit_command(
+    pose: np.ndarray,
+    target: np.ndarray,
+    max_linear: float,
+    max_angular: float,
+    turn_in_place: float = math.radians(55.0),
+    heading_gain: float = 2.5,
+) -> tuple[float, float]:
+    """Pure-pursuit (v m/s, w rad/s) driving ``pose`` (3,) = (x, y, yaw) to ``target`` (2,).
+
+    Large heading errors turn in place; otherwise the robot follows the pure-pursuit arc
+    (curvature 2 sin(alpha) / L) and slows down so the arc's turn rate stays within
+    ``max_angular``, also slowing as the heading error grows.
+    """
+    dx, dy = float(target[0] - pose[0]), float(target[1] - pose[1])
+    dist = math.hypot(dx, dy)
+    alpha = wrap_angle(math.atan2(dy, dx) - float(pose[2]))
+    if dist < 1e-6:
+        return 0.0, 0.0
+    if abs(alpha) > turn_in_place:
+        return 0.0, math.copysign(max_angular, alpha) * min(1.0, heading_gain * abs(alpha))
+    curvature = 2.0 * math.sin(alpha) / dist
+    v = max_linear * max(0.0, math.cos(alpha)) ** 2
+    if abs(curvature) * v > max_angular:
+        v = max_angular / abs(curvature)
+    w = float(np.clip(curvature * v, -max_angular, max_angular))
+    return v, w
+
+
+# ----------------------------------------------------------------------------- the expert
+
+
+@dataclass(frozen=True)
+class ExpertConfig:
+    """Tuning knobs of the expert (metres, radians, steps)."""
+
+    stop_distance: float = 0.75  # call STOP at this geodesic distance or closer
+    face_tolerance: float = math.radians(12.0)  # heading error to the goal accepted at STOP
+    lookahead: float = 0.6
+    clearance_margin: float = 0.3
+    clearance_weight: float = 6.0
+    min_free_clearance: float = 0.04  # line-of-sight cells must keep this much clearance
+    excursion_steps: tuple[int, int] = (3, 8)  # DART excursion length range (inclusive)
+
+    def __post_init__(self) -> None:
+        for name in ("stop_distance", "lookahead", "clearance_margin", "face_tolerance"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"ExpertConfig.{name} must be > 0, got {getattr(self, name)}")
+
+
+class GeodesicExpert:
+    """Follows the geodesic to the goal and stops facing it; optional DART-style noise.
+
+    Args:
+        env: a ``VLAGR/ObjectNav-v0`` env (possibly wrapped); ground truth is read from
+            ``env.unwrapped``.
+        noise_std: std of Gaussian noise added to the executed (v, w) fractions.
+        noise_prob: per-step probability of starting a short random excursion.
+        seed: seed of the noise generator.
+    """
+
+    def __init__(
+        self,
+        env,
+        noise_std: float = 0.0,
+        noise_prob: float = 0.0,
+        seed: int | None = None,
+        config: ExpertConfig | None = None,
+    ) -> None:
+        if noise_std < 0:
+            raise ValueError(f"noise_std must be >= 0, got {noise_std}")
+        if not 0.0 <= noise_prob <= 1.0:
+            raise ValueError(f"noise_prob must be in [0, 1], got {noise_prob}")
+        self.env = env
+        self.noise_std = float(noise_std)
+        self.noise_prob = float(noise_prob)
+        self.config = config or ExpertConfig()
+        self.rng = np.random.default_rng(seed)
+        self.last_label = np.zeros(3, np.float32)
+        self._plan_key = None
+        self._excursion_left = 0
+        self._excursion_action = np.zeros(3, np.float32)
+
+    # -- planning ------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Plan for the env's current episode; call after ``env.reset``."""
+        u = self.env.unwrapped
+        house, goal = u.house, u.goal
+        self._excursion_left = 0
+        self.last_label = np.zeros(3, np.float32)
+        key = (id(house), house.seed, goal.instance_id)
+        if key == self._plan_key:
+            return
+        grid: GridSpec = house.grid
+        footprint = house.object_ids == goal.instance_id  # (H, W)
+        if not footprint.any():
+            raise ValueError(f"goal {goal.instance_id} has no footprint in house {house.seed}")
+        cfg = self.config
+        cost = clearance_cost(
+            house.occupancy,
+            grid.cell_size,
+            ROBOT_RADIUS,
+            cfg.clearance_margin,
+            cfg.clearance_weight,
+        )  # (H, W)
+        walls = house.occupancy & ~footprint  # (H, W)
+        self._field = geodesic_distance(cost, footprint, walls, grid.cell_size)  # (H, W)
+        # Fallback measure of the distance to the goal (unit cost) if the env's is unusable.
+        self._unit_field = geodesic_distance(1.0, footprint, walls, grid.cell_size)  # (H, W)
+        clearance = (
+            ndimage.distance_transform_edt(~house.occupancy) * grid.cell_size - ROBOT_RADIUS
+        )  # (H, W)
+        self._free = (clearance >= cfg.min_free_clearance) | footprint  # (H, W)
+        self._grid = grid
+        self._plan_key = key
+        logger.debug("planned for house %s goal %s", house.seed, goal.instance_id)
+
+    def distance_to_goal(self, xy: np.ndarray) -> float:
+        """Geodesic distance (m) from ``xy`` (2,) to the goal footprint, as the env measures it."""
+        field = getattr(self.env.unwrapped, "goal_distance", None)
+        if field is not None:
+            d = sample_field(field, self._grid, float(xy[0]), float(xy[1]))
+            if math.isfinite(d):
+                return d
+        return sample_field(self._unit_field, self._grid, float(xy[0]), float(xy[1]))
+
+    # -- control -------------------------------------------------------------------------
+    def expert_action(self) -> np.ndarray:
+        """Noise-free action (3,) float32 for the robot's current ground-truth pose."""
+        if self._plan_key is None:
+            self.reset()
+        u = self.env.unwrapped
+        pose = np.asarray(u.robot_pose_world(), dtype=np.float64)  # (3,)
+        vmax, wmax = float(u.max_linear_speed), float(u.max_angular_speed)
+        cfg = self.config
+        goal = u.goal
+        if self.distance_to_goal(pose[:2]) <= cfg.stop_distance:
+            err = wrap_angle(math.atan2(goal.y - pose[1], goal.x - pose[0]) - pose[2])
+            if abs(err) <= cfg.face_tolerance:
+                return np.array([0.0, 0.0, 1.0], np.float32)
+            w = math.copysign(wmax * min(1.0, 2.0 * abs(err)), err)
+            return self._to_action(0.0, w, vmax, wmax)
+        path = descend_path(self._field, self._grid, pose[:2], cfg.lookahead + 0.2)  # (N, 2)
+        target = lookahead_point(path, cfg.lookahead, self._free, self._grid)  # (2,)
+        v, w = pursuit_command(pose, target, vmax, wmax)
+        return self._to_action(v, w, vmax, wmax)
+
+    @staticmethod
+    def _to_action(v: float, w: float, vmax: float, wmax: float) -> np.ndarray:
+        return np.array(
+            [np.clip(v / vmax, -1, 1), np.clip(w / wmax, -1, 1), -1.0], dtype=np.float32
+        )
+
+    def act(self, obs=None) -> np.ndarray:
+        """Action (3,) float32 to execute; the noise-free label is kept in ``last_label``."""
+        label = self.expert_action()  # (3,)
+        self.last_label = label.copy()
+        if label[2] > 0 or (self.noise_std == 0 and self.noise_prob == 0):
+            self._excursion_left = 0
+            return label
+        if self._excursion_left == 0 and self.rng.random() < self.noise_prob:
+            lo, hi = self.config.excursion_steps
+            self._excursion_left = int(self.rng.integers(lo, hi + 1))
+            self._excursion_action = np.array(
+                [self.rng.uniform(0.0, 1.0), self.rng.uniform(-1.0, 1.0), -1.0], np.float32
+            )
+        if self._excursion_left > 0:
+            self._excursion_left -= 1
+            action = self._excursion_action.copy()
+        else:
+            action = label.copy()
+        if self.noise_std > 0:
+            action[:2] += self.rng.normal(0.0, self.noise_std, size=2).astype(np.float32)
+        action[:2] = np.clip(action[:2], -1.0, 1.0)
+        action[2] = -1.0
+        return action
