@@ -182,7 +182,10 @@ def test_aggregate_means():
     with pytest.raises(ValueError, match="empty"):
         aggregate([])
     with pytest.raises(ValueError, match="spl"):
-        aggregate([{"success": 1.0}])
+        aggregate([{"success": 1.0, "collision_rate": 0.0}])
+    with pytest.raises(ValueError, match="steps"):
+        aggregate([a, {k: v for k, v in b.items() if k != "steps"}])  # no rate, no steps
+    assert aggregate([b])["collision_rate"] == pytest.approx(0.25)
 
 
 def test_format_table():

@@ -252,11 +252,12 @@ AGGREGATE_KEYS: tuple[str, ...] = (
 )
 
 
-def _collision_rate(info: dict) -> float:
+def _collision_rate(info: dict, index: int) -> float:
     if "collision_rate" in info:
         return float(info["collision_rate"])
-    steps = info.get("steps", 0)
-    return float(info.get("collisions", 0)) / steps if steps else 0.0
+    if "collisions" not in info or "steps" not in info:
+        raise ValueError(f"infos[{index}] needs 'collision_rate' or both 'collisions' and 'steps'")
+    return float(info["collisions"]) / info["steps"] if info["steps"] else 0.0
 
 
 def aggregate(infos: Sequence[dict]) -> dict:
@@ -269,7 +270,7 @@ def aggregate(infos: Sequence[dict]) -> dict:
     out: dict = {}
     for key in AGGREGATE_KEYS:
         if key == "collision_rate":
-            values = [_collision_rate(info) for info in infos]
+            values = [_collision_rate(info, i) for i, info in enumerate(infos)]
         else:
             missing = [i for i, info in enumerate(infos) if key not in info]
             if missing:
