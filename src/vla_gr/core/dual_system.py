@@ -1,0 +1,504 @@
+"""Dual-system control: a slow planner S2 steering a fast reactive controller S1.
+
+As in GR00T N1 / Helix: S2 reads vision-language features at 1-5 Hz and emits a
+latent goal, optional sub-goals and a confidence; S1 runs at the control rate on
+the current visual features, proprioception and the *latest* latent goal.
+
+Timeline of :meth:`DualSystemArchitecture.forward` in eval mode with
+``control_frequency_hz=10`` and ``planning_frequency_hz=2`` (plan every 5 calls)::
+
+    call     0    1    2    3    4    5    6  ...   (reset() -> call 0 again)
+    S2       X    .    .    .    .    X    .        X: S2 runs, result cached
+    S1       X    X    X    X    X    X    X        every call, latest goal
+
+In training mode S2 runs on every call so that gradients reach the planner.
+The threaded, non-blocking version of the same schedule is
+:class:`vla_gr.core.realtime.DualSystemRunner`.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+logger = logging.getLogger(__name__)
+
+GATES = ("confidence", "learned")
+
+
+# --------------------------------------------------------------------------- pure maths
+
+
+def plan_interval(control_frequency_hz: float, planning_frequency_hz: float) -> int:
+    """Number of control calls per S2 call: ``max(1, round(control / planning))``."""
+    if not control_frequency_hz > 0:
+        raise ValueError(f"control_frequency_hz={control_frequency_hz!r} must be > 0")
+    if not planning_frequency_hz > 0:
+        raise ValueError(f"planning_frequency_hz={planning_frequency_hz!r} must be > 0")
+    if planning_frequency_hz > control_frequency_hz:
+        raise ValueError(
+            f"planning_frequency_hz={planning_frequency_hz} must not exceed "
+            f"control_frequency_hz={control_frequency_hz} (S2 is the slow system)"
+        )
+    return max(1, round(control_frequency_hz / planning_frequency_hz))
+
+
+def gate_actions(
+    goal_action: torch.Tensor, reactive_action: torch.Tensor, gate: torch.Tensor
+) -> torch.Tensor:
+    """Convex blend ``g * goal + (1 - g) * reactive``.
+
+    Args:
+        goal_action: (B, A) goal-directed action.
+        reactive_action: (B, A) reactive action.
+        gate: (B,) weight in [0, 1] of the goal-directed branch.
+
+    Returns:
+        (B, A) blended action.
+    """
+    g = gate.unsqueeze(-1)  # (B, 1)
+    return g * goal_action + (1.0 - g) * reactive_action  # (B, A)
+
+
+def confidence_targets(goal_error: torch.Tensor, reactive_error: torch.Tensor) -> torch.Tensor:
+    """Calibration label: 1 where the goal-directed branch beats the reactive one.
+
+    Args:
+        goal_error: (B,) per-sample error of the goal-directed action.
+        reactive_error: (B,) per-sample error of the reactive action.
+
+    Returns:
+        (B,) float tensor in {0, 1}, detached.
+    """
+    return (goal_error < reactive_error).to(goal_error.dtype).detach()  # (B,)
+
+
+# --------------------------------------------------------------------------- modules
+
+
+class _ResidualMLPBlock(nn.Module):
+    """Pre-norm residual MLP block ``x + W2 gelu(W1 norm(x))``."""
+
+    def __init__(self, dim: int, expansion: int = 2, dropout: float = 0.0) -> None:
+        super().__init__()
+        self.norm = nn.LayerNorm(dim)
+        self.fc1 = nn.Linear(dim, expansion * dim)
+        self.fc2 = nn.Linear(expansion * dim, dim)
+        self.dropout = nn.Dropout(dropout)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """x: (B, D) -> (B, D)."""
+        return x + self.dropout(self.fc2(F.gelu(self.fc1(self.norm(x)))))  # (B, D)
+
+
+def _head(dim: int, out_dim: int) -> nn.Sequential:
+    return nn.Sequential(nn.LayerNorm(dim), nn.Linear(dim, dim), nn.GELU(), nn.Linear(dim, out_dim))
+
+
+class S2Planner(nn.Module):
+    """Slow planner: vision-language tokens -> latent goal, sub-goals, confidence.
+
+    Learnable query tokens (one goal token, ``num_subgoals`` sub-goal tokens) are
+    prepended to the projected input tokens and encoded jointly (pre-norm
+    transformer); the goal token feeds the goal and confidence heads.
+    """
+
+    def __init__(
+        self,
+        vlm_dim: int,
+        hidden_dim: int,
+        goal_dim: int,
+        num_subgoals: int = 4,
+        num_layers: int = 2,
+        num_heads: int = 4,
+        dropout: float = 0.0,
+    ) -> None:
+        super().__init__()
+        if hidden_dim % num_heads != 0:
+            raise ValueError(
+                f"s2_hidden_dim={hidden_dim} must be divisible by s2_num_heads={num_heads}"
+            )
+        self.num_subgoals = num_subgoals
+        self.in_proj = nn.Sequential(nn.LayerNorm(vlm_dim), nn.Linear(vlm_dim, hidden_dim))
+        self.queries = nn.Parameter(0.02 * torch.randn(1 + num_subgoals, hidden_dim))
+        layer = nn.TransformerEncoderLayer(
+            hidden_dim,
+            num_heads,
+            4 * hidden_dim,
+            dropout,
+            activation="gelu",
+            batch_first=True,
+            norm_first=True,
+        )
+        self.encoder = nn.TransformerEncoder(layer, num_layers, enable_nested_tensor=False)
+        self.norm = nn.LayerNorm(hidden_dim)
+        self.goal_head = nn.Linear(hidden_dim, goal_dim)
+        self.subgoal_head = nn.Linear(hidden_dim, goal_dim) if num_subgoals > 0 else None
+        self.confidence_head = nn.Linear(hidden_dim, 1)
+
+    def forward(
+        self, vlm_features: torch.Tensor, vlm_mask: torch.Tensor | None = None
+    ) -> dict[str, torch.Tensor | None]:
+        """Plan.
+
+        Args:
+            vlm_features: (B, T, vlm_dim) tokens or (B, vlm_dim) pooled features.
+            vlm_mask: optional (B, T) bool, True where a token is valid.
+
+        Returns:
+            ``latent_goal`` (B, G), ``subgoals`` (B, K, G) or None, ``confidence``
+            (B,) in (0, 1) and ``confidence_logit`` (B,).
+        """
+        if vlm_features.dim() == 2:
+            vlm_features = vlm_features.unsqueeze(1)  # (B, 1, vlm_dim)
+        B = vlm_features.shape[0]
+        tokens = self.in_proj(vlm_features)  # (B, T, D)
+        queries = self.queries.unsqueeze(0).expand(B, -1, -1)  # (B, 1+K, D)
+        x = torch.cat([queries, tokens], dim=1)  # (B, 1+K+T, D)
+        pad = None
+        if vlm_mask is not None:
+            valid_q = torch.ones(B, queries.shape[1], dtype=torch.bool, device=x.device)
+            pad = ~torch.cat([valid_q, vlm_mask.to(torch.bool)], dim=1)  # (B, 1+K+T)
+        x = self.norm(self.encoder(x, src_key_padding_mask=pad))  # (B, 1+K+T, D)
+        goal_token = x[:, 0]  # (B, D)
+        logit = self.confidence_head(goal_token).squeeze(-1)  # (B,)
+        subgoals = None
+        if self.subgoal_head is not None:
+            subgoals = self.subgoal_head(x[:, 1 : 1 + self.num_subgoals])  # (B, K, G)
+        return {
+            "latent_goal": self.goal_head(goal_token),  # (B, G)
+            "subgoals": subgoals,
+            "confidence": torch.sigmoid(logit),  # (B,)
+            "confidence_logit": logit,  # (B,)
+        }
+
+
+class S1Controller(nn.Module):
+    """Fast controller: (visual, proprioception, latent goal, confidence) -> action.
+
+    A shared residual-MLP trunk encodes the current observation; a *reactive*
+    head maps it to an action directly, a *goal-directed* head maps the trunk
+    state FiLM-modulated by the latent goal. The two are blended by the S2
+    confidence (``gate="confidence"``) or by a learned correction of its logit
+    from the S1 state (``gate="learned"``, zero-initialised so it starts equal).
+    """
+
+    def __init__(
+        self,
+        visual_dim: int,
+        proprio_dim: int,
+        goal_dim: int,
+        hidden_dim: int,
+        action_dim: int,
+        num_layers: int = 2,
+        gate: str = "confidence",
+        dropout: float = 0.0,
+    ) -> None:
+        super().__init__()
+        if gate not in GATES:
+            raise ValueError(f"gate={gate!r} is not valid; choose one of {list(GATES)}")
+        self.gate = gate
+        self.visual_proj = nn.Sequential(
+            nn.LayerNorm(visual_dim), nn.Linear(visual_dim, hidden_dim)
+        )
+        self.proprio_proj = nn.Linear(proprio_dim, hidden_dim)
+        self.trunk = nn.Sequential(
+            *[_ResidualMLPBlock(hidden_dim, dropout=dropout) for _ in range(num_layers)]
+        )
+        self.goal_film = nn.Linear(goal_dim, 2 * hidden_dim)
+        self.reactive_head = _head(hidden_dim, action_dim)
+        self.goal_head = _head(hidden_dim, action_dim)
+        self.gate_adjust = None
+        if gate == "learned":
+            self.gate_adjust = nn.Linear(hidden_dim, 1)
+            nn.init.zeros_(self.gate_adjust.weight)
+            nn.init.zeros_(self.gate_adjust.bias)
+
+    def forward(
+        self,
+        visual_features: torch.Tensor,
+        proprioception: torch.Tensor,
+        latent_goal: torch.Tensor,
+        confidence: torch.Tensor,
+    ) -> dict[str, torch.Tensor]:
+        """Act.
+
+        Args:
+            visual_features: (B, V) or (B, T, V) tokens (mean-pooled).
+            proprioception: (B, P).
+            latent_goal: (B, G) latest S2 goal.
+            confidence: (B,) S2 confidence in [0, 1].
+
+        Returns:
+            ``action`` (B, A), ``goal_action`` (B, A), ``reactive_action`` (B, A),
+            ``gate`` (B,) weight actually given to the goal-directed branch.
+        """
+        if visual_features.dim() == 3:
+            visual_features = visual_features.mean(dim=1)  # (B, V)
+        h = self.visual_proj(visual_features) + self.proprio_proj(proprioception)  # (B, D)
+        h = self.trunk(h)  # (B, D)
+        gamma, beta = self.goal_film(latent_goal).chunk(2, dim=-1)  # (B, D) each
+        h_goal = h * (1.0 + gamma) + beta  # (B, D)
+        goal_action = self.goal_head(h_goal)  # (B, A)
+        reactive_action = self.reactive_head(h)  # (B, A)
+        gate = confidence  # (B,)
+        if self.gate_adjust is not None:
+            eps = 1e-6
+            logit = torch.logit(confidence.clamp(eps, 1.0 - eps))  # (B,)
+            gate = torch.sigmoid(logit + self.gate_adjust(h).squeeze(-1))  # (B,)
+        return {
+            "action": gate_actions(goal_action, reactive_action, gate),  # (B, A)
+            "goal_action": goal_action,
+            "reactive_action": reactive_action,
+            "gate": gate,
+        }
+
+
+class DualSystemArchitecture(nn.Module):
+    """S2 planner + S1 controller with S2 cached between planning ticks.
+
+    Args:
+        visual_dim: width of the visual features given to S1.
+        vlm_dim: width of the vision-language features given to S2.
+        s1_hidden_dim: S1 trunk width (S1 stays <= 2 M parameters at the defaults).
+        s2_hidden_dim: S2 transformer width.
+        planning_frequency_hz: S2 rate; ``control / planning`` (rounded) calls per plan.
+        control_frequency_hz: S1 rate (one forward call per control tick).
+        action_dim: action width. proprio_dim: proprioception width.
+        goal_dim: latent goal width (default ``s1_hidden_dim``).
+        num_subgoals: sub-goal tokens emitted by S2 (0 disables them).
+        s1_num_layers, s2_num_layers, s2_num_heads, dropout: sizes.
+        gate: ``"confidence"`` (action = c * goal + (1 - c) * reactive) or ``"learned"``.
+    """
+
+    def __init__(
+        self,
+        visual_dim: int = 512,
+        vlm_dim: int = 768,
+        s1_hidden_dim: int = 256,
+        s2_hidden_dim: int = 512,
+        planning_frequency_hz: float = 2.0,
+        control_frequency_hz: float = 20.0,
+        action_dim: int = 7,
+        proprio_dim: int = 7,
+        goal_dim: int | None = None,
+        num_subgoals: int = 4,
+        s1_num_layers: int = 2,
+        s2_num_layers: int = 2,
+        s2_num_heads: int = 8,
+        dropout: float = 0.0,
+        gate: str = "confidence",
+    ) -> None:
+        super().__init__()
+        for key, value in (
+            ("visual_dim", visual_dim),
+            ("vlm_dim", vlm_dim),
+            ("s1_hidden_dim", s1_hidden_dim),
+            ("s2_hidden_dim", s2_hidden_dim),
+            ("action_dim", action_dim),
+            ("proprio_dim", proprio_dim),
+            ("s1_num_layers", s1_num_layers),
+            ("s2_num_layers", s2_num_layers),
+        ):
+            if not (isinstance(value, int) and value > 0):
+                raise ValueError(f"{key}={value!r} must be a positive int")
+        if num_subgoals < 0:
+            raise ValueError(f"num_subgoals={num_subgoals!r} must be >= 0")
+        if not 0.0 <= dropout < 1.0:
+            raise ValueError(f"dropout={dropout!r} must be in [0, 1)")
+        self.plan_every = plan_interval(control_frequency_hz, planning_frequency_hz)
+        self.visual_dim, self.vlm_dim = visual_dim, vlm_dim
+        self.action_dim, self.proprio_dim = action_dim, proprio_dim
+        self.goal_dim = goal_dim or s1_hidden_dim
+        self.planning_frequency_hz = float(planning_frequency_hz)
+        self.control_frequency_hz = float(control_frequency_hz)
+        self.s2 = S2Planner(
+            vlm_dim,
+            s2_hidden_dim,
+            self.goal_dim,
+            num_subgoals,
+            s2_num_layers,
+            s2_num_heads,
+            dropout,
+        )
+        self.s1 = S1Controller(
+            visual_dim,
+            proprio_dim,
+            self.goal_dim,
+            s1_hidden_dim,
+            action_dim,
+            s1_num_layers,
+            gate,
+            dropout,
+        )
+        self.s2_calls = 0  # total S2 evaluations since construction (diagnostics)
+        self.reset()
+
+    # ------------------------------------------------------------------ state
+
+    def reset(self) -> None:
+        """Drop the cached plan; the next call runs S2."""
+        self._plan: dict[str, torch.Tensor | None] | None = None
+        self._steps_since_plan = 0
+
+    def _needs_plan(self, batch_size: int, device: torch.device, force_plan: bool) -> bool:
+        if force_plan or self.training or self._plan is None:
+            return True
+        goal = self._plan["latent_goal"]
+        if goal.shape[0] != batch_size or goal.device != device:
+            return True
+        return self._steps_since_plan >= self.plan_every
+
+    # ------------------------------------------------------------------ stateless parts
+
+    def plan(
+        self, vlm_features: torch.Tensor, vlm_mask: torch.Tensor | None = None
+    ) -> dict[str, torch.Tensor | None]:
+        """Run S2 once (no caching); see :meth:`S2Planner.forward` for shapes."""
+        self._check_features("vlm_features", vlm_features, self.vlm_dim)
+        self.s2_calls += 1
+        return self.s2(vlm_features, vlm_mask)
+
+    def act(
+        self,
+        visual_features: torch.Tensor,
+        proprioception: torch.Tensor | None,
+        latent_goal: torch.Tensor,
+        confidence: torch.Tensor,
+    ) -> dict[str, torch.Tensor]:
+        """Run S1 once on a given plan; see :meth:`S1Controller.forward` for shapes."""
+        self._check_features("visual_features", visual_features, self.visual_dim)
+        B = visual_features.shape[0]
+        if proprioception is None:
+            proprioception = visual_features.new_zeros(B, self.proprio_dim)  # (B, P)
+        self._check_features("proprioception", proprioception, self.proprio_dim, (2,))
+        if proprioception.shape[0] != B:
+            raise ValueError(
+                f"proprioception batch {proprioception.shape[0]} != visual_features batch {B}"
+            )
+        if latent_goal.shape != (B, self.goal_dim):
+            raise ValueError(
+                f"latent_goal has shape {tuple(latent_goal.shape)}, expected ({B}, {self.goal_dim})"
+            )
+        return self.s1(visual_features, proprioception, latent_goal, confidence)
+
+    @staticmethod
+    def _check_features(name: str, x: torch.Tensor, dim: int, ndims=(2, 3)) -> None:
+        if not isinstance(x, torch.Tensor):
+            raise ValueError(f"{name} must be a torch.Tensor, got {type(x).__name__}")
+        if x.dim() not in ndims or x.shape[-1] != dim:
+            want = " or ".join(f"{n}-D" for n in ndims)
+            raise ValueError(
+                f"{name} has shape {tuple(x.shape)}; expected {want} with last dim {dim}"
+            )
+
+    # ------------------------------------------------------------------ forward / loss
+
+    def forward(
+        self,
+        visual_features: torch.Tensor,
+        vlm_features: torch.Tensor,
+        proprioception: torch.Tensor | None = None,
+        vlm_mask: torch.Tensor | None = None,
+        force_plan: bool = False,
+    ) -> dict[str, torch.Tensor | bool | None]:
+        """One control tick.
+
+        Args:
+            visual_features: (B, visual_dim) or (B, T, visual_dim) current observation.
+            vlm_features: (B, vlm_dim) or (B, T, vlm_dim); only read when S2 runs.
+            proprioception: (B, proprio_dim); zeros when None.
+            vlm_mask: optional (B, T) bool validity mask of the VLM tokens.
+            force_plan: run S2 now and restart the planning schedule.
+
+        Returns:
+            ``action`` (B, A), ``goal_action`` (B, A), ``reactive_action`` (B, A),
+            ``gate`` (B,), ``latent_goal`` (B, G), ``subgoals`` (B, K, G) or None,
+            ``confidence`` (B,), ``confidence_logit`` (B,), ``s2_ran`` bool.
+        """
+        self._check_features("visual_features", visual_features, self.visual_dim)
+        B = visual_features.shape[0]
+        s2_ran = self._needs_plan(B, visual_features.device, force_plan)
+        if s2_ran:
+            if vlm_features.shape[0] != B:
+                raise ValueError(f"vlm_features batch {vlm_features.shape[0]} != {B}")
+            plan = self.plan(vlm_features, vlm_mask)
+            # Cache a detached copy; in training mode the live tensors are used below.
+            self._plan = {k: (v.detach() if v is not None else None) for k, v in plan.items()}
+            self._steps_since_plan = 0
+        else:
+            plan = self._plan
+        self._steps_since_plan += 1
+        out = self.act(visual_features, proprioception, plan["latent_goal"], plan["confidence"])
+        return {**plan, **out, "s2_ran": s2_ran}
+
+    def compute_loss(
+        self,
+        visual_features: torch.Tensor,
+        vlm_features: torch.Tensor,
+        proprioception: torch.Tensor | None,
+        target_actions: torch.Tensor,
+        vlm_mask: torch.Tensor | None = None,
+        subgoal_targets: torch.Tensor | None = None,
+        branch_weight: float = 0.5,
+        confidence_weight: float = 0.1,
+    ) -> dict[str, torch.Tensor]:
+        """Training loss with S2 run on this call (gradients reach both systems).
+
+        ``loss = mse(action) + branch_weight * (mse(goal) + mse(reactive))
+        + confidence_weight * BCE(confidence, [goal error < reactive error])
+        (+ mse(subgoals) when targets are given)``. The calibration term teaches
+        S2 to be confident exactly when following its goal beats reacting.
+
+        Args:
+            target_actions: (B, A) expert actions.
+            subgoal_targets: optional (B, K, G) sub-goal targets.
+            Other arguments as in :meth:`forward`.
+
+        Returns:
+            ``loss`` (scalar) and detached scalars ``action_loss``, ``branch_loss``,
+            ``confidence_loss``, ``confidence_mean``, ``confidence_target_mean``.
+        """
+        if target_actions.shape[-1] != self.action_dim or target_actions.dim() != 2:
+            raise ValueError(
+                f"target_actions has shape {tuple(target_actions.shape)}; "
+                f"expected (B, {self.action_dim})"
+            )
+        out = self.forward(
+            visual_features, vlm_features, proprioception, vlm_mask=vlm_mask, force_plan=True
+        )
+        action_loss = F.mse_loss(out["action"], target_actions)
+        goal_err = (out["goal_action"] - target_actions).pow(2).mean(-1)  # (B,)
+        reactive_err = (out["reactive_action"] - target_actions).pow(2).mean(-1)  # (B,)
+        branch_loss = goal_err.mean() + reactive_err.mean()
+        target_c = confidence_targets(goal_err, reactive_err)  # (B,)
+        confidence_loss = F.binary_cross_entropy_with_logits(out["confidence_logit"], target_c)
+        loss = action_loss + branch_weight * branch_loss + confidence_weight * confidence_loss
+        result = {}
+        if subgoal_targets is not None:
+            if out["subgoals"] is None or subgoal_targets.shape != out["subgoals"].shape:
+                raise ValueError(
+                    f"subgoal_targets has shape {tuple(subgoal_targets.shape)}; expected "
+                    f"{None if out['subgoals'] is None else tuple(out['subgoals'].shape)}"
+                )
+            subgoal_loss = F.mse_loss(out["subgoals"], subgoal_targets)
+            loss = loss + subgoal_loss
+            result["subgoal_loss"] = subgoal_loss.detach()
+        result.update(
+            loss=loss,
+            action_loss=action_loss.detach(),
+            branch_loss=branch_loss.detach(),
+            confidence_loss=confidence_loss.detach(),
+            confidence_mean=out["confidence"].mean().detach(),
+            confidence_target_mean=target_c.mean(),
+        )
+        return result
+
+    def num_parameters(self) -> dict[str, int]:
+        """Parameter counts of ``s1``, ``s2`` and ``total``."""
+        s1 = sum(p.numel() for p in self.s1.parameters())
+        s2 = sum(p.numel() for p in self.s2.parameters())
+        return {"s1": s1, "s2": s2, "total": s1 + s2}
