@@ -11,6 +11,9 @@ from dataclasses import dataclass, field
 
 from hydra.core.config_store import ConfigStore
 
+from vla_gr.configs.model_schema import ModelConfig
+from vla_gr.configs.training_schema import LoggingConfig, TrainingConfig
+
 SPLITS = ("train", "val", "test")
 
 
@@ -104,6 +107,9 @@ class VLAGRConfig:
     expert: ExpertConfig = field(default_factory=ExpertConfig)
     collect: CollectConfig = field(default_factory=CollectConfig)
     demo: DemoConfig = field(default_factory=DemoConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)
+    training: TrainingConfig = field(default_factory=TrainingConfig)
+    logging: LoggingConfig = field(default_factory=LoggingConfig)
 
 
 def register_configs() -> None:

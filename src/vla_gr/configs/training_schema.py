@@ -1,0 +1,110 @@
+"""Structured config of ``vla-gr train`` (``training.*``) and of its logging (``logging.*``)."""
+
+from __future__ import annotations
+
+import importlib.util
+from dataclasses import dataclass, field
+
+from vla_gr.configs.model_schema import check_choice, check_positive
+
+AMP_MODES = ("none", "fp16", "bf16")
+DEVICES = ("auto", "cpu", "cuda")
+IF_MISSING = ("error", "collect", "synthetic")
+DDP_BACKENDS = ("auto", "nccl", "gloo")
+LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
+
+
+@dataclass
+class TrainingConfig:
+    """Optimisation, data, precision, distribution and checkpointing of a training run."""
+
+    # Data.
+    dataset: str = "data/expert_train.zarr"
+    if_missing: str = "error"  # dataset absent: error | collect (run the expert) | synthetic
+    synthetic_episodes: int = 8  # for if_missing=synthetic
+    synthetic_length: int = 24
+    val_ratio: float = 0.1  # held-out episodes for the validation loss
+    num_workers: int = 0
+    # Optimisation.
+    steps: int = 2000  # optimiser steps
+    batch_size: int = 32  # micro-batch per process
+    grad_accum: int = 1  # micro-batches per optimiser step
+    lr: float = 3e-4
+    min_lr_ratio: float = 0.1  # cosine floor as a fraction of lr
+    warmup_steps: int = 100
+    weight_decay: float = 1e-4
+    betas: list[float] | None = None  # AdamW betas; None = (0.9, 0.999)
+    grad_clip: float = 1.0  # max global grad norm; 0 disables
+    ema_decay: float = 0.995  # 0 disables EMA
+    ema_warmup: bool = True  # decay ramps up as min(decay, (1 + s) / (10 + s))
+    optimizer_offload: bool = False  # keep AdamW state (and fp32 master weights) on the CPU
+    # Precision / speed.
+    device: str = "auto"
+    amp: str = "none"  # none | fp16 (autocast + GradScaler) | bf16 (autocast)
+    compile: bool = False  # torch.compile the policy
+    ddp_backend: str = "auto"  # auto: nccl on CUDA, gloo on CPU
+    init_from: str | None = None  # checkpoint folder whose weights initialise the model
+    # Evaluation / checkpointing.
+    val_every: int = 200  # optimiser steps between validation losses (0 = never)
+    val_batches: int = 8  # batches per validation (per process)
+    checkpoint_every: int = 200  # optimiser steps between `latest` checkpoints (0 = end only)
+    keep_checkpoints: int = 2  # step folders kept besides the one `best` points to
+    resume: str | None = None  # <run>/checkpoints/latest
+    output_dir: str = "outputs/train"
+    run_name: str | None = None  # default: a timestamp
+    log_every: int = 10
+
+    def __post_init__(self) -> None:
+        check_choice("training.if_missing", self.if_missing, IF_MISSING)
+        check_positive("training.synthetic_episodes", self.synthetic_episodes)
+        check_positive("training.synthetic_length", self.synthetic_length)
+        if not 0.0 <= self.val_ratio < 1.0:
+            raise ValueError(f"training.val_ratio={self.val_ratio} must be in [0, 1)")
+        check_positive("training.num_workers", self.num_workers, allow_zero=True)
+        for key in ("steps", "batch_size", "grad_accum", "lr", "log_every", "val_batches"):
+            check_positive(f"training.{key}", getattr(self, key))
+        if not 0.0 <= self.min_lr_ratio <= 1.0:
+            raise ValueError(f"training.min_lr_ratio={self.min_lr_ratio} must be in [0, 1]")
+        for key in ("warmup_steps", "weight_decay", "grad_clip", "val_every", "checkpoint_every"):
+            check_positive(f"training.{key}", getattr(self, key), allow_zero=True)
+        if self.betas is not None and (
+            len(self.betas) != 2 or not all(0.0 <= b < 1.0 for b in self.betas)
+        ):
+            raise ValueError(f"training.betas={self.betas} must be two numbers in [0, 1)")
+        if not 0.0 <= self.ema_decay < 1.0:
+            raise ValueError(f"training.ema_decay={self.ema_decay} must be in [0, 1)")
+        check_choice("training.device", self.device, DEVICES)
+        check_choice("training.amp", self.amp, AMP_MODES)
+        check_choice("training.ddp_backend", self.ddp_backend, DDP_BACKENDS)
+        check_positive("training.keep_checkpoints", self.keep_checkpoints)
+
+
+@dataclass
+class WandbConfig:
+    """Weights & Biases mirror of the metrics (off by default; needs ``pip install wandb``)."""
+
+    enabled: bool = False
+    project: str = "vla-gr"
+    entity: str | None = None
+    mode: str = "online"  # online | offline | disabled
+
+    def __post_init__(self) -> None:
+        check_choice("logging.wandb.mode", self.mode, ("online", "offline", "disabled"))
+        if self.enabled and importlib.util.find_spec("wandb") is None:
+            raise ValueError(
+                "logging.wandb.enabled=true but the wandb package is not installed; "
+                "install it with `pip install 'vla-gr[wandb]'` or set logging.wandb.enabled=false"
+            )
+
+
+@dataclass
+class LoggingConfig:
+    """Where training metrics go: metrics.jsonl always, TensorBoard, progress bar, wandb."""
+
+    tensorboard: bool = True
+    progress: bool = True
+    level: str = "INFO"
+    wandb: WandbConfig = field(default_factory=WandbConfig)
+
+    def __post_init__(self) -> None:
+        check_choice("logging.level", self.level, LOG_LEVELS)
