@@ -1,0 +1,373 @@
+"""Procedural houses: floorplan + furniture -> :class:`House` (occupancy grid) and MJCF.
+
+``generate_house(seed)`` is fully determined by its arguments. The occupancy grid follows the
+``GridSpec`` convention (a cell is occupied when its centre lies inside a wall box or an object
+footprint; everything outside the house is occupied too). After placement, the free space of
+a robot of radius ``ROBOT_RADIUS`` is checked to be one connected region from which every
+object can be touched; pieces that close off a pocket or cannot be reached are dropped.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+from scipy import ndimage
+
+from vla_gr.envs.floorplan import (
+    WALL_HEIGHT,
+    WALL_THICKNESS,
+    WallBox,
+    layout_rooms,
+    sample_room_types,
+    wall_boxes,
+)
+from vla_gr.envs.furniture import collision_geom, object_geoms
+from vla_gr.envs.placement import Placed, place_furniture
+from vla_gr.envs.scene import Door, House, ObjectInstance, Room
+from vla_gr.geometry import GridSpec, disk_kernel, inflate_obstacles
+
+logger = logging.getLogger(__name__)
+
+ROBOT_RADIUS = 0.18
+SPLITS: dict[str, int] = {"train": 0, "val": 1_000_000, "test": 2_000_000}
+SPLIT_SIZE = 1_000_000
+GRID_MARGIN = 0.5
+
+#: Wall paint and floor finish per room type (RGBA); a little jitter per house.
+_WALL_PAINT = {
+    "kitchen": (0.93, 0.90, 0.78),
+    "living_room": (0.88, 0.84, 0.76),
+    "bedroom": (0.78, 0.84, 0.92),
+    "bathroom": (0.80, 0.92, 0.90),
+    "office": (0.86, 0.88, 0.80),
+    "hallway": (0.85, 0.85, 0.85),
+}
+_FLOOR_FINISH = {
+    "kitchen": (0.62, 0.62, 0.60),
+    "living_room": (0.55, 0.40, 0.27),
+    "bedroom": (0.64, 0.50, 0.36),
+    "bathroom": (0.72, 0.74, 0.76),
+    "office": (0.40, 0.36, 0.34),
+    "hallway": (0.50, 0.45, 0.40),
+}
+
+
+def split_seed(split: str, index: int) -> int:
+    """Scene seed of episode/scene ``index`` of ``split``; splits use disjoint seed ranges."""
+    if split not in SPLITS:
+        raise ValueError(f"split must be one of {sorted(SPLITS)}, got {split!r}")
+    if not 0 <= int(index) < SPLIT_SIZE:
+        raise ValueError(f"index must be in [0, {SPLIT_SIZE}), got {index}")
+    return SPLITS[split] + int(index)
+
+
+# --------------------------------------------------------------------------- rasterisation
+
+
+def _grid_for(rooms: list[Room], cell_size: float, margin: float) -> GridSpec:
+    t = WALL_THICKNESS
+    x0 = min(r.x0 for r in rooms) - t - margin
+    y0 = min(r.y0 for r in rooms) - t - margin
+    x1 = max(r.x1 for r in rooms) + t + margin
+    y1 = max(r.y1 for r in rooms) + t + margin
+    ox, oy = np.floor(x0 / cell_size) * cell_size, np.floor(y0 / cell_size) * cell_size
+    width = int(np.ceil((x1 - ox) / cell_size))
+    height = int(np.ceil((y1 - oy) / cell_size))
+    return GridSpec(round(ox, 6), round(oy, 6), cell_size, height, width)
+
+
+def _cell_range(lo: float, hi: float, origin: float, cell: float, n: int) -> slice:
+    """Cells whose centre lies in [lo, hi] along one axis."""
+    a = int(np.ceil((lo - origin) / cell - 0.5 - 1e-9))
+    b = int(np.floor((hi - origin) / cell - 0.5 + 1e-9))
+    return slice(max(a, 0), max(min(b + 1, n), 0))
+
+
+def rasterize_box(mask: np.ndarray, grid: GridSpec, x0, y0, x1, y1, value=True) -> None:
+    """Set ``mask`` (H, W) to ``value`` on cells whose centre lies in the box (in place)."""
+    rows = _cell_range(y0, y1, grid.origin_y, grid.cell_size, grid.height)
+    cols = _cell_range(x0, x1, grid.origin_x, grid.cell_size, grid.width)
+    mask[rows, cols] = value
+
+
+def footprint_cells(obj: ObjectInstance, grid: GridSpec) -> tuple[slice, slice, np.ndarray]:
+    """(rows, cols, inside) where ``inside`` (h, w) marks window cells inside the footprint."""
+    corners = obj.footprint()  # (4, 2)
+    rows = _cell_range(
+        corners[:, 1].min(), corners[:, 1].max(), grid.origin_y, grid.cell_size, grid.height
+    )
+    cols = _cell_range(
+        corners[:, 0].min(), corners[:, 0].max(), grid.origin_x, grid.cell_size, grid.width
+    )
+    xs = grid.origin_x + (np.arange(cols.start, cols.stop) + 0.5) * grid.cell_size  # (w,)
+    ys = grid.origin_y + (np.arange(rows.start, rows.stop) + 0.5) * grid.cell_size  # (h,)
+    dx, dy = xs[None, :] - obj.x, ys[:, None] - obj.y  # (1, w), (h, 1)
+    c, s = np.cos(obj.yaw), np.sin(obj.yaw)
+    lx, ly = c * dx + s * dy, -s * dx + c * dy  # (h, w) each, in the object's frame
+    hx, hy = obj.half_extents
+    inside = (np.abs(lx) <= hx + 1e-9) & (np.abs(ly) <= hy + 1e-9)  # (h, w)
+    return rows, cols, inside
+
+
+def structure_occupancy(rooms: list[Room], doors: list[Door], grid: GridSpec) -> np.ndarray:
+    """(H, W) bool: walls (robot height) plus everything outside the house."""
+    outside = np.ones(grid.shape, bool)
+    t = WALL_THICKNESS
+    for room in rooms:
+        rasterize_box(outside, grid, room.x0 - t, room.y0 - t, room.x1 + t, room.y1 + t, False)
+    occ = outside
+    for box in wall_boxes(rooms, doors):
+        if box.blocks_robot:
+            rasterize_box(occ, grid, box.x0, box.y0, box.x1, box.y1)
+    return occ
+
+
+def object_id_grid(objects: list[ObjectInstance], grid: GridSpec) -> np.ndarray:
+    """(H, W) int32 instance id covering each cell (0 where no footprint)."""
+    ids = np.zeros(grid.shape, np.int32)
+    for obj in objects:
+        rows, cols, inside = footprint_cells(obj, grid)
+        window = ids[rows, cols]
+        window[inside] = obj.instance_id
+    return ids
+
+
+def build_house(
+    seed: int,
+    rooms: list[Room],
+    doors: list[Door],
+    objects: list[ObjectInstance],
+    cell_size: float = 0.05,
+    margin: float = GRID_MARGIN,
+    meta: dict | None = None,
+) -> House:
+    """Rasterise rooms, doors and objects into a :class:`House` (also for hand-built scenes)."""
+    if not 0 < cell_size <= 0.05:
+        raise ValueError(f"cell_size must be in (0, 0.05] m, got {cell_size}")
+    if not rooms:
+        raise ValueError("rooms must not be empty")
+    grid = _grid_for(rooms, cell_size, margin)
+    ids = object_id_grid(objects, grid)
+    occ = structure_occupancy(rooms, doors, grid) | (ids > 0)
+    return House(
+        seed, list(rooms), list(doors), list(objects), grid, occ, ids, WALL_HEIGHT, meta or {}
+    )
+
+
+# --------------------------------------------------------------------------- verification
+
+
+def _touch_kernel(grid: GridSpec, robot_radius: float) -> np.ndarray:
+    return disk_kernel(robot_radius + 1.5 * grid.cell_size, grid.cell_size)
+
+
+def unreachable_problems(
+    house: House, robot_radius: float = ROBOT_RADIUS
+) -> tuple[list[np.ndarray], list[int]]:
+    """(pockets, unreachable ids): traversable components besides the largest, and objects
+    whose footprint no cell of the largest component touches (centre within radius + 1.5 cells).
+    """
+    free = ~inflate_obstacles(house.occupancy, robot_radius, house.grid.cell_size)  # (H, W)
+    labels, count = ndimage.label(free, structure=np.ones((3, 3), int))
+    if count == 0:
+        return [], [o.instance_id for o in house.objects]
+    sizes = np.bincount(labels.ravel())[1:]
+    main_label = int(np.argmax(sizes)) + 1
+    pockets = [labels == k for k in range(1, count + 1) if k != main_label]
+    main = labels == main_label  # (H, W)
+    kernel = _touch_kernel(house.grid, robot_radius)
+    pad = kernel.shape[0] // 2
+    unreachable = []
+    for obj in house.objects:
+        rows, cols, inside = footprint_cells(obj, house.grid)
+        r0, r1 = max(rows.start - pad, 0), min(rows.stop + pad, house.grid.height)
+        c0, c1 = max(cols.start - pad, 0), min(cols.stop + pad, house.grid.width)
+        fp = np.zeros((r1 - r0, c1 - c0), bool)
+        fp[rows.start - r0 : rows.stop - r0, cols.start - c0 : cols.stop - c0] = inside
+        near = ndimage.binary_dilation(fp, structure=kernel)  # (h, w)
+        if not (near & main[r0:r1, c0:c1]).any():
+            unreachable.append(obj.instance_id)
+    return pockets, unreachable
+
+
+def _prune(house_args: dict, placed: list[Placed], robot_radius: float) -> list[Placed]:
+    """Drop pieces until free space is connected and every piece is reachable."""
+    for _ in range(len(placed) + 1):
+        objects = [p.obj for p in placed]
+        house = build_house(objects=objects, **house_args)
+        pockets, unreachable = unreachable_problems(house, robot_radius)
+        if not pockets and not unreachable:
+            return placed
+        culprits = set(unreachable)
+        kernel = _touch_kernel(house.grid, robot_radius)
+        for pocket in pockets:
+            near = ndimage.binary_dilation(pocket, structure=kernel)
+            culprits.update(int(i) for i in np.unique(house.object_ids[near]) if i > 0)
+        if not culprits:
+            logger.warning("house %s: free space split by walls alone", house.seed)
+            return placed
+        # Drop the least important culprit: optional before essential, later before earlier.
+        order = {p.obj.instance_id: (p.essential, -k) for k, p in enumerate(placed)}
+        victim = min(culprits, key=lambda i: order[i])
+        placed = [p for p in placed if p.obj.instance_id != victim]
+    return placed
+
+
+# --------------------------------------------------------------------------- generation
+
+
+def generate_house(
+    seed: int, num_rooms: int | None = None, clutter: float = 1.0, cell_size: float = 0.05
+) -> House:
+    """A procedural house fully determined by the arguments.
+
+    Args:
+        seed: scene seed (see :func:`split_seed`).
+        num_rooms: 1..6 rooms, or None to draw 2..5 from the seed.
+        clutter: >= 0, scales how many optional pieces each room gets.
+        cell_size: occupancy cell size in metres, in (0, 0.05].
+
+    Returns:
+        A :class:`House`; ``occupancy`` (H, W) bool and ``object_ids`` (H, W) int32.
+    """
+    if num_rooms is not None and not 1 <= int(num_rooms) <= 6:
+        raise ValueError(f"num_rooms must be in [1, 6] or None, got {num_rooms}")
+    if not 0.0 <= clutter <= 4.0:
+        raise ValueError(f"clutter must be in [0, 4], got {clutter}")
+    if not 0 < cell_size <= 0.05:
+        raise ValueError(f"cell_size must be in (0, 0.05] m, got {cell_size}")
+    rng = np.random.default_rng(int(seed))
+    n = int(rng.integers(2, 6)) if num_rooms is None else int(num_rooms)
+    rooms, doors = layout_rooms(n, sample_room_types(n, rng), rng)
+    placed = place_furniture(rooms, doors, clutter, rng)
+    meta = {
+        "num_rooms": n,
+        "clutter": float(clutter),
+        "wall_rgba": [_jitter(_WALL_PAINT[r.room_type], rng) for r in rooms],
+        "floor_rgba": [_jitter(_FLOOR_FINISH[r.room_type], rng) for r in rooms],
+    }
+    args = dict(seed=int(seed), rooms=rooms, doors=doors, cell_size=cell_size, meta=meta)
+    placed = _prune(args, placed, ROBOT_RADIUS)
+    objects = [_renumber(p.obj, k + 1) for k, p in enumerate(placed)]
+    return build_house(objects=objects, **args)
+
+
+def _jitter(rgb: tuple[float, float, float], rng: np.random.Generator) -> list[float]:
+    return [round(float(np.clip(c + rng.uniform(-0.05, 0.05), 0.0, 1.0)), 3) for c in rgb] + [1.0]
+
+
+def _renumber(obj: ObjectInstance, instance_id: int) -> ObjectInstance:
+    return ObjectInstance(
+        instance_id,
+        obj.category,
+        obj.color,
+        obj.room_index,
+        obj.x,
+        obj.y,
+        obj.yaw,
+        obj.half_extents,
+        obj.height,
+    )
+
+
+# --------------------------------------------------------------------------- MJCF
+
+
+def _f(*values: float) -> str:
+    return " ".join(f"{v:.4f}".rstrip("0").rstrip(".") or "0" for v in values)
+
+
+def _wall_xml(box: WallBox, material: str) -> str:
+    half = ((box.x1 - box.x0) / 2, (box.y1 - box.y0) / 2, (box.z1 - box.z0) / 2)
+    pos = ((box.x0 + box.x1) / 2, (box.y0 + box.y1) / 2, (box.z0 + box.z1) / 2)
+    cls = "static" if box.blocks_robot else "visual"
+    return (
+        f'    <geom name="{box.name}" class="{cls}" type="box" size="{_f(*half)}" '
+        f'pos="{_f(*pos)}" material="{material}"/>'
+    )
+
+
+def house_to_mjcf(house: House, robot_xml: str = "", robot_assets: str = "") -> str:
+    """Complete MJCF model of ``house``; ``robot_xml`` (a <body>) goes into <worldbody>.
+
+    Geom naming: furniture ``obj{id}_<part>`` inside body ``obj{id}``; walls ``wall_...``;
+    floor ``floor``. Static collision geoms use contype=1 conaffinity=0, so they collide with
+    a robot of contype=1 conaffinity=1 but never with each other; visual parts do not collide.
+    Each piece has an invisible box ``obj{id}_collision`` (group 3) filling its footprint up to
+    robot height, matching the occupancy grid.
+    """
+    wall_rgba = house.meta.get("wall_rgba") or [[0.85, 0.85, 0.82, 1.0]] * len(house.rooms)
+    floor_rgba = house.meta.get("floor_rgba") or [[0.55, 0.45, 0.35, 1.0]] * len(house.rooms)
+    t = WALL_THICKNESS
+    x0 = min(r.x0 for r in house.rooms) - t
+    y0 = min(r.y0 for r in house.rooms) - t
+    x1 = max(r.x1 for r in house.rooms) + t
+    y1 = max(r.y1 for r in house.rooms) + t
+    cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+    extent = max(x1 - x0, y1 - y0)
+
+    lines = [
+        f'<mujoco model="house_{house.seed}">',
+        '  <compiler angle="radian"/>',
+        '  <option timestep="0.02"/>',
+        f'  <statistic center="{_f(cx, cy, 1.0)}" extent="{_f(extent)}"/>',
+        "  <visual>",
+        '    <quality shadowsize="0" offsamples="0" numslices="8" numstacks="4"/>',
+        '    <headlight ambient="0.45 0.45 0.45" diffuse="0.35 0.35 0.35" specular="0 0 0"/>',
+        '    <map znear="0.01" zfar="50"/>',
+        "  </visual>",
+        "  <default>",
+        '    <default class="static"><geom contype="1" conaffinity="0" group="0"/></default>',
+        '    <default class="visual"><geom contype="0" conaffinity="0" group="0"/></default>',
+        '    <default class="collider">',
+        '      <geom contype="1" conaffinity="0" group="3" rgba="0.5 0.5 0.5 0"/>',
+        "    </default>",
+        "  </default>",
+        "  <asset>",
+    ]
+    for i, (w, fl) in enumerate(zip(wall_rgba, floor_rgba)):
+        lines.append(f'    <material name="wall_mat{i}" rgba="{_f(*w)}" specular="0.1"/>')
+        lines.append(f'    <material name="floor_mat{i}" rgba="{_f(*fl)}" specular="0.2"/>')
+    lines.append('    <material name="wall_ext" rgba="0.8 0.8 0.78 1" specular="0.1"/>')
+    lines.append('    <material name="floor_base" rgba="0.35 0.35 0.35 1"/>')
+    if robot_assets:
+        lines.append(robot_assets)
+    lines += [
+        "  </asset>",
+        "  <worldbody>",
+        '    <light name="sun" directional="true" castshadow="false" pos="0 0 5" '
+        'dir="0.3 0.2 -1" diffuse="0.5 0.5 0.5" specular="0 0 0"/>',
+        f'    <geom name="floor" class="static" type="box" '
+        f'size="{_f((x1 - x0) / 2, (y1 - y0) / 2, 0.05)}" '
+        f'pos="{_f(cx, cy, -0.05)}" material="floor_base"/>',
+    ]
+    for room, _ in zip(house.rooms, floor_rgba):
+        half = ((room.x1 - room.x0) / 2, (room.y1 - room.y0) / 2, 0.001)
+        pos = ((room.x0 + room.x1) / 2, (room.y0 + room.y1) / 2, 0.001)
+        lines.append(
+            f'    <geom name="floor_room{room.index}" class="visual" type="box" '
+            f'size="{_f(*half)}" pos="{_f(*pos)}" material="floor_mat{room.index}"/>'
+        )
+    for box in wall_boxes(house.rooms, house.doors):
+        lines.append(_wall_xml(box, f"wall_mat{box.room}" if box.room >= 0 else "wall_ext"))
+    for obj in house.objects:
+        lines.append(
+            f'    <body name="{obj.body_name}" pos="{_f(obj.x, obj.y, 0.0)}" '
+            f'euler="{_f(0.0, 0.0, obj.yaw)}">'
+        )
+        col = collision_geom(obj)
+        lines.append(
+            f'      <geom name="{obj.body_name}_{col.suffix}" class="collider" type="box" '
+            f'size="{_f(*col.size)}" pos="{_f(*col.pos)}"/>'
+        )
+        for g in object_geoms(obj):
+            lines.append(
+                f'      <geom name="{obj.body_name}_{g.suffix}" class="visual" type="{g.kind}" '
+                f'size="{_f(*g.size)}" pos="{_f(*g.pos)}" rgba="{_f(*g.rgba)}"/>'
+            )
+        lines.append("    </body>")
+    if robot_xml:
+        lines.append(robot_xml)
+    lines += ["  </worldbody>", "</mujoco>", ""]
+    return "\n".join(lines)
