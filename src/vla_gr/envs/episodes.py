@@ -1,0 +1,305 @@
+"""ObjectNav episode specs: deterministic sampling, validation, JSONL files.
+
+An :class:`EpisodeSpec` is everything needed to replay an episode exactly: the scene
+(seed and generation knobs), the start pose, the goal instance and the instruction.
+Episode ``index`` of a split lives in scene ``index // EPISODES_PER_SCENE`` (several
+episodes per house, as Habitat's datasets do) and is drawn from an RNG seeded by
+(split, index) only, so ``sample_episode`` is a pure function of its arguments.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from vla_gr.envs.geodesic import (
+    ROBOT_RADIUS,
+    goal_distance_field,
+    sample_field,
+    traversable_cells,
+)
+from vla_gr.envs.scene import House
+from vla_gr.geometry import geodesic_distance, inflate_obstacles
+
+logger = logging.getLogger(__name__)
+
+SPLITS = ("train", "val", "test")
+EPISODES_PER_SCENE = 4
+MIN_START_DISTANCE = 2.0  # m, geodesic start -> goal footprint
+MAX_START_DISTANCE = 15.0
+START_CLEARANCE = 0.05  # m of free space around the base at the start, beyond its radius
+_SPLIT_CODE = {"train": 11, "val": 23, "test": 37}
+
+
+@dataclass(frozen=True)
+class EpisodeSpec:
+    """One ObjectNav episode. Poses are in world metres / radians."""
+
+    episode_id: str
+    split: str
+    scene_seed: int
+    num_rooms: int | None
+    clutter: float
+    start_x: float
+    start_y: float
+    start_yaw: float
+    goal_instance_id: int
+    goal_category: str
+    instruction: str
+    geodesic_start_distance: float
+
+    @property
+    def scene_key(self) -> tuple[int, int | None, float]:
+        """What determines the house: (scene_seed, num_rooms, clutter)."""
+        return (self.scene_seed, self.num_rooms, self.clutter)
+
+    @property
+    def start_pose(self) -> np.ndarray:
+        """World start pose (3,) = (x, y, yaw)."""
+        return np.array([self.start_x, self.start_y, self.start_yaw], dtype=np.float64)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, record: dict) -> EpisodeSpec:
+        """Build from a dict with exactly the dataclass fields (ValueError otherwise)."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        missing, extra = names - set(record), set(record) - names
+        if missing or extra:
+            raise ValueError(
+                f"episode record has missing fields {sorted(missing)} / "
+                f"unknown fields {sorted(extra)}"
+            )
+        rec = dict(record)
+        rec["num_rooms"] = None if rec["num_rooms"] is None else int(rec["num_rooms"])
+        for key in ("clutter", "start_x", "start_y", "start_yaw", "geodesic_start_distance"):
+            rec[key] = float(rec[key])
+        for key in ("scene_seed", "goal_instance_id"):
+            rec[key] = int(rec[key])
+        return cls(**rec)
+
+
+def goal_field(house: House, instance_id: int) -> np.ndarray:
+    """Geodesic distance (H, W) in metres from goal ``instance_id``'s footprint, for robot centres.
+
+    ``envs.geodesic.goal_distance_field`` when its front escapes the footprint. When the
+    goal's own inflation ring (cells within the robot radius of the footprint) blocks the
+    front, only the *other* obstacles are inflated, so the ring is crossed and every
+    reachable centre gets its distance to the footprint (the quantity that function defines).
+    """
+    field = goal_distance_field(house, instance_id)  # (H, W)
+    footprint = house.object_ids == instance_id  # (H, W)
+    if np.isfinite(field[~footprint]).any():
+        return field
+    others = house.occupancy & ~footprint  # (H, W)
+    blocked = inflate_obstacles(others, ROBOT_RADIUS, house.grid.cell_size) & ~footprint
+    return geodesic_distance(1.0, footprint, blocked, house.grid.cell_size)
+
+
+def episode_rng(split: str, index: int) -> np.random.Generator:
+    """The RNG of episode ``index`` of ``split`` (independent of every other episode)."""
+    if split not in _SPLIT_CODE:
+        raise ValueError(f"split={split!r} is not valid; choose one of {list(SPLITS)}")
+    if index < 0:
+        raise ValueError(f"index={index} must be >= 0")
+    return np.random.default_rng(np.random.SeedSequence([_SPLIT_CODE[split], int(index), 2]))
+
+
+def scene_seed_for(split: str, index: int, episodes_per_scene: int = EPISODES_PER_SCENE) -> int:
+    """Seed of the house that episode ``index`` of ``split`` takes place in."""
+    from vla_gr.envs.house import split_seed
+
+    if episodes_per_scene < 1:
+        raise ValueError(f"episodes_per_scene={episodes_per_scene} must be >= 1")
+    return int(split_seed(split, index // episodes_per_scene))
+
+
+def sample_start(
+    house: House,
+    distance_field: np.ndarray,
+    rng: np.random.Generator,
+    min_distance: float = MIN_START_DISTANCE,
+    max_distance: float = MAX_START_DISTANCE,
+) -> tuple[float, float, float, float] | None:
+    """A random start (x, y, yaw, geodesic distance) for a goal, or None if none fits.
+
+    ``distance_field`` (H, W) is the goal's geodesic distance field. Candidates are cell
+    centres with ``START_CLEARANCE`` of free space around the base whose geodesic
+    distance lies in [min_distance, max_distance] (finite, hence reachable).
+    """
+    if not 0 <= min_distance <= max_distance:
+        raise ValueError(
+            f"need 0 <= min_distance <= max_distance, got {min_distance}, {max_distance}"
+        )
+    roomy = traversable_cells(house, ROBOT_RADIUS + START_CLEARANCE)  # (H, W)
+    ok = roomy & np.isfinite(distance_field) & (distance_field >= min_distance)
+    ok &= distance_field <= max_distance  # (H, W)
+    cells = np.argwhere(ok)  # (N, 2) row, col
+    if len(cells) == 0:
+        return None
+    row, col = cells[rng.integers(len(cells))]
+    x, y = house.grid.cell_to_world(np.array([row, col]))
+    yaw = float(rng.uniform(-math.pi, math.pi))
+    return float(x), float(y), yaw, float(distance_field[row, col])
+
+
+def sample_episode_in_house(
+    house: House,
+    split: str,
+    index: int,
+    num_rooms: int | None = None,
+    clutter: float = 1.0,
+    max_goal_tries: int = 16,
+) -> EpisodeSpec:
+    """Episode ``index`` of ``split`` in an already generated ``house`` (deterministic)."""
+    from vla_gr.envs.instructions import describe_goal, goal_candidates
+
+    rng = episode_rng(split, index)
+    candidates = list(goal_candidates(house))
+    if not candidates:
+        raise ValueError(f"house {house.seed} has no goal candidates")
+    order = rng.permutation(len(candidates))
+    for k in order[:max_goal_tries]:
+        goal_id = int(candidates[k])
+        field = goal_field(house, goal_id)  # (H, W)
+        start = sample_start(house, field, rng)
+        if start is None:
+            continue
+        x, y, yaw, dist = start
+        instruction = describe_goal(house, goal_id, rng)
+        return EpisodeSpec(
+            episode_id=f"{split}-{index:06d}",
+            split=split,
+            scene_seed=int(house.seed),
+            num_rooms=num_rooms,
+            clutter=float(clutter),
+            start_x=x,
+            start_y=y,
+            start_yaw=yaw,
+            goal_instance_id=goal_id,
+            goal_category=house.object(goal_id).category,
+            instruction=instruction,
+            geodesic_start_distance=dist,
+        )
+    raise ValueError(
+        f"no start {MIN_START_DISTANCE}-{MAX_START_DISTANCE} m from any goal in house {house.seed}"
+    )
+
+
+def sample_episode(
+    split: str,
+    index: int,
+    num_rooms: int | None = None,
+    clutter: float = 1.0,
+    episodes_per_scene: int = EPISODES_PER_SCENE,
+    house: House | None = None,
+) -> EpisodeSpec:
+    """Episode ``index`` of ``split``: same arguments, same spec, on any machine.
+
+    ``house`` may be passed when the caller already generated the episode's house.
+    """
+    from vla_gr.envs.house import generate_house
+
+    seed = scene_seed_for(split, index, episodes_per_scene)
+    if house is None:
+        house = generate_house(seed, num_rooms=num_rooms, clutter=clutter)
+    elif house.seed != seed:
+        raise ValueError(f"house seed {house.seed} is not episode {index}'s scene seed {seed}")
+    return sample_episode_in_house(house, split, index, num_rooms, clutter)
+
+
+def validate_spec(
+    spec: EpisodeSpec,
+    house: House,
+    traversable: np.ndarray | None = None,
+    distance_field: np.ndarray | None = None,
+) -> float:
+    """Raise ValueError with the reason if ``spec`` cannot run in ``house``.
+
+    Checks the goal exists (with the spec's category), the start lies in the map, outside
+    every obstacle inflated by the robot radius, and is reachable from the goal.
+    ``traversable`` (H, W) and ``distance_field`` (H, W) may be passed when already computed.
+    Returns the geodesic start distance (m).
+    """
+    if spec.split not in SPLITS:
+        raise ValueError(f"episode {spec.episode_id}: split={spec.split!r} not in {SPLITS}")
+    if spec.scene_seed != house.seed:
+        raise ValueError(
+            f"episode {spec.episode_id}: scene_seed={spec.scene_seed} but house seed={house.seed}"
+        )
+    try:
+        goal = house.object(spec.goal_instance_id)
+    except KeyError:
+        raise ValueError(
+            f"episode {spec.episode_id}: goal object {spec.goal_instance_id} is missing from "
+            f"house {house.seed}"
+        ) from None
+    if goal.category != spec.goal_category:
+        raise ValueError(
+            f"episode {spec.episode_id}: goal object {goal.instance_id} is a {goal.category}, "
+            f"not a {spec.goal_category}"
+        )
+    pose = spec.start_pose
+    if not np.all(np.isfinite(pose)):
+        raise ValueError(f"episode {spec.episode_id}: start pose {pose.tolist()} is not finite")
+    cell = house.grid.world_to_cell(pose[:2])  # (2,) row, col
+    if not house.grid.in_bounds(cell):
+        raise ValueError(
+            f"episode {spec.episode_id}: start ({pose[0]:.2f}, {pose[1]:.2f}) is outside the map"
+        )
+    row, col = int(cell[0]), int(cell[1])
+    if traversable is None:
+        traversable = traversable_cells(house)
+    if not traversable[row, col]:
+        raise ValueError(
+            f"episode {spec.episode_id}: start ({pose[0]:.2f}, {pose[1]:.2f}) is inside an "
+            f"obstacle (or closer than the robot radius {ROBOT_RADIUS} m to one)"
+        )
+    if distance_field is None:
+        distance_field = goal_field(house, spec.goal_instance_id)
+    if not np.isfinite(distance_field[row, col]):
+        raise ValueError(
+            f"episode {spec.episode_id}: start ({pose[0]:.2f}, {pose[1]:.2f}) is unreachable "
+            f"from goal object {spec.goal_instance_id}"
+        )
+    return sample_field(distance_field, house.grid, pose[0], pose[1])
+
+
+def save_episodes(path: str | Path, specs) -> Path:
+    """Write ``specs`` as JSONL (one episode per line); returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    with tmp.open("w", encoding="utf-8") as f:
+        for spec in specs:
+            if not isinstance(spec, EpisodeSpec):
+                raise ValueError(f"specs must hold EpisodeSpec, got {type(spec).__name__}")
+            f.write(json.dumps(spec.to_dict(), sort_keys=True) + "\n")
+    tmp.replace(path)
+    return path
+
+
+def load_episodes(path: str | Path) -> list[EpisodeSpec]:
+    """Read a JSONL file written by :func:`save_episodes` (blank lines skipped)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"episodes file {str(path)!r} does not exist")
+    specs = []
+    with path.open(encoding="utf-8") as f:
+        for lineno, line in enumerate(f, start=1):
+            if not line.strip():
+                continue
+            try:
+                specs.append(EpisodeSpec.from_dict(json.loads(line)))
+            except (json.JSONDecodeError, ValueError, TypeError) as err:
+                raise ValueError(f"{path}:{lineno}: bad episode record: {err}") from err
+    if not specs:
+        raise ValueError(f"episodes file {str(path)!r} holds no episodes")
+    return specs
