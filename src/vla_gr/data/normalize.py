@@ -11,7 +11,6 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
 #: Dimensions whose stored range is below this are treated as constant (mapped to 0).
 RANGE_EPS = 1e-4
@@ -117,7 +116,9 @@ class MinMaxNormalizer:
     def _like(self, x):
         if x.shape[-1] != self.scale.shape[0]:
             raise ValueError(f"last dim of input {tuple(x.shape)} must be {self.scale.shape[0]}")
-        if isinstance(x, torch.Tensor):
+        if type(x).__module__.startswith("torch"):
+            import torch
+
             return (
                 torch.as_tensor(self.scale, dtype=x.dtype, device=x.device),
                 torch.as_tensor(self.offset, dtype=x.dtype, device=x.device),
