@@ -83,3 +83,132 @@ def geodesic_distance(
             device=template.device,
         )
     return travel
+
+
+def upwind_gradient(travel: np.ndarray, cell_size: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Upwind gradient (dT/dx, dT/dy), each (H, W), of a travel-time field ``travel`` (H, W).
+
+    Along each axis the difference is taken towards the smaller neighbour when that neighbour
+    is smaller than the cell itself (the eikonal upwind scheme), else it is 0. Infinite
+    (blocked) neighbours are never used, so the result is finite wherever ``travel`` is;
+    it is 0 on infinite cells. Axis convention as ``GridSpec``: x along columns, y along rows.
+    """
+    T = np.asarray(travel, dtype=np.float64)
+    if T.ndim != 2:
+        raise ValueError(f"travel must be (H, W), got shape {T.shape}")
+    padded = np.pad(T, 1, constant_values=np.inf)  # (H + 2, W + 2)
+    grads = []
+    for lo, hi in (
+        (padded[1:-1, :-2], padded[1:-1, 2:]),  # left / right neighbours -> d/dx
+        (padded[:-2, 1:-1], padded[2:, 1:-1]),  # down / up neighbours -> d/dy
+    ):
+        use_lo = (lo <= hi) & (lo < T)
+        use_hi = (hi < lo) & (hi < T)
+        with np.errstate(invalid="ignore"):
+            g = np.where(use_lo, T - lo, 0.0) + np.where(use_hi, hi - T, 0.0)
+        g = np.where(np.isfinite(T) & np.isfinite(g), g, 0.0) / cell_size
+        grads.append(g)
+    return grads[0], grads[1]
+
+
+def _bilinear(field: np.ndarray, finite: np.ndarray, fr: float, fc: float) -> float:
+    """Bilinear ``field`` (H, W) at fractional cell-centre (row, col), over finite corners."""
+    H, W = field.shape
+    fr = min(max(fr, 0.0), H - 1.0)
+    fc = min(max(fc, 0.0), W - 1.0)
+    r0, c0 = min(int(fr), H - 2) if H > 1 else 0, min(int(fc), W - 2) if W > 1 else 0
+    ar, ac = fr - r0, fc - c0
+    total, weight = 0.0, 0.0
+    for dr, wr in ((0, 1.0 - ar), (1, ar)):
+        for dc, wc in ((0, 1.0 - ac), (1, ac)):
+            r, c = min(r0 + dr, H - 1), min(c0 + dc, W - 1)
+            w = wr * wc
+            if finite[r, c] and w > 0:
+                total += w * field[r, c]
+                weight += w
+    return total / weight if weight > 0 else np.inf
+
+
+def extract_path(
+    travel,
+    start,
+    cell_size: float = 1.0,
+    step: float = 0.5,
+    max_length: float = np.inf,
+    max_steps: int | None = None,
+):
+    """Descend a travel-time field from ``start`` to its source with sub-cell steps.
+
+    Steps of ``step`` cells follow the bilinearly interpolated upwind gradient of ``travel``;
+    where that gradient vanishes or does not decrease T (saddles, obstacle corners) the path
+    moves towards the lowest of the 8 neighbouring cells instead.
+
+    Args:
+        travel: (H, W) travel time (numpy or torch) from :func:`geodesic_distance`.
+        start: (2,) metric (x, y) measured from the grid's lower-left corner.
+        cell_size: metres per cell.
+        step: step length in cells (0 < step <= 1).
+        max_length: stop after this many metres.
+        max_steps: hard cap on steps (default 4 * (H + W) / step).
+
+    Returns:
+        waypoints (N, 2) metric (x, y), same kind as ``travel``, starting at ``start`` and
+        ending in a source cell (T = 0) or after ``max_length``. Empty (0, 2) when ``start`` is
+        unreachable (T = inf) or outside the grid.
+    """
+    T, template = _to_numpy(travel)
+    T = T.astype(np.float64)
+    if T.ndim != 2:
+        raise ValueError(f"travel must be (H, W), got shape {T.shape}")
+    if not 0.0 < step <= 1.0:
+        raise ValueError(f"step must be in (0, 1] cells, got {step}")
+    H, W = T.shape
+    x, y = (float(v) for v in np.asarray(_to_numpy(start)[0], dtype=np.float64).reshape(2))
+    fc, fr = x / cell_size - 0.5, y / cell_size - 0.5  # fractional cell-centre coordinates
+    finite = np.isfinite(T)
+    path: list[tuple[float, float]] = []
+    r, c = int(np.floor(fr + 0.5)), int(np.floor(fc + 0.5))
+    if 0 <= r < H and 0 <= c < W and finite[r, c]:
+        gx, gy = upwind_gradient(T, 1.0)
+        path.append((fc, fr))
+        cap = max_steps if max_steps is not None else int(4 * (H + W) / step)
+        length = 0.0
+        for _ in range(cap):
+            if T[r, c] == 0.0 or length >= max_length:
+                break
+            here = _bilinear(T, finite, fr, fc)
+            vx, vy = _bilinear(gx, finite, fr, fc), _bilinear(gy, finite, fr, fc)
+            norm = float(np.hypot(vx, vy))
+            moved = False
+            if np.isfinite(norm) and norm > 1e-12:
+                nc, nr = fc - step * vx / norm, fr - step * vy / norm
+                ir, ic = int(np.floor(nr + 0.5)), int(np.floor(nc + 0.5))
+                if (
+                    0 <= ir < H
+                    and 0 <= ic < W
+                    and finite[ir, ic]
+                    and _bilinear(T, finite, nr, nc) < here
+                ):
+                    fr, fc, moved = nr, nc, True
+            if not moved:  # towards the lowest neighbouring cell
+                window = T[max(r - 1, 0) : r + 2, max(c - 1, 0) : c + 2]
+                wr, wc = np.unravel_index(np.argmin(window), window.shape)
+                tr, tc = max(r - 1, 0) + wr, max(c - 1, 0) + wc
+                if T[tr, tc] >= T[r, c]:
+                    if (tr, tc) == (r, c) and (abs(fr - r) > 1e-9 or abs(fc - c) > 1e-9):
+                        tr, tc = r, c  # settle on the current (lowest) cell's centre
+                    else:
+                        break  # a local minimum that is not a source: give up
+                d = float(np.hypot(tr - fr, tc - fc))
+                frac = min(1.0, step / d) if d > 0 else 1.0
+                fr, fc = fr + frac * (tr - fr), fc + frac * (tc - fc)
+            length += float(np.hypot(fc - path[-1][0], fr - path[-1][1])) * cell_size
+            path.append((fc, fr))
+            r, c = int(np.floor(fr + 0.5)), int(np.floor(fc + 0.5))
+    cells = np.asarray(path, dtype=np.float64).reshape(-1, 2)  # (N, 2) as (col, row)
+    waypoints = (cells + 0.5) * cell_size  # (N, 2) metric (x, y)
+    if template is not None:
+        import torch
+
+        return torch.as_tensor(waypoints, dtype=torch.float32, device=template.device)
+    return waypoints

@@ -1,0 +1,414 @@
+"""The GR field: the agent's map becomes mass, the mass a potential and a metric, the metric a path.
+
+One :meth:`GRField.update` per planner tick:
+
+1. depth + pose -> map-frame points -> allocentric evidence map (``field_map``);
+2. masses: goal (attractive), frontier (attractive, so an unseen goal still explores) and
+   obstacles (negative density), ``rho`` (B, H, W);
+3. potential ``phi`` from the Poisson equation with free-space boundaries;
+4. conformal metric ``g = exp(2 psi) delta``, ``psi`` raised near obstacles and low in the
+   potential wells; Christoffel symbols on demand (:meth:`GRField.christoffel`);
+5. geodesic distance ``T`` of that metric from the goal (or the frontier when no goal is seen)
+   by fast marching with cost ``exp(psi)`` around the robot-inflated obstacles;
+6. outputs: egocentric heading-aligned features (B, C, h, w), the next waypoints of the
+   geodesic (B, K, 2) in the robot frame, and a picture for reports (:meth:`GRField.render`).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from vla_gr.core.field_map import centred_grid, empty_map, map_layers, update_map
+from vla_gr.core.field_maths import (
+    christoffel_conformal,
+    conformal_log_factor,
+    frontier_mask,
+    integrate_geodesic,
+    normalise_mass,
+    obstacle_proximity,
+    solve_poisson,
+)
+from vla_gr.core.field_render import render_field
+from vla_gr.geometry.camera import ego_to_world, project_depth, world_to_ego
+from vla_gr.geometry.fast_marching import extract_path, geodesic_distance, upwind_gradient
+from vla_gr.geometry.grid import inflate_obstacles
+
+logger = logging.getLogger(__name__)
+
+__all__ = [
+    "FEATURE_NAMES",
+    "GRField",
+    "GRFieldConfig",
+    "GRFieldOutput",
+    "christoffel_conformal",
+    "extract_path",
+    "geodesic_distance",
+    "integrate_geodesic",
+    "project_depth",
+    "solve_poisson",
+    "update_map",
+]
+
+#: Channels of the egocentric feature tensor, in order.
+FEATURE_NAMES: tuple[str, ...] = (
+    "phi",  # potential rescaled to [0, 1] per map
+    "psi",  # log conformal factor
+    "travel",  # geodesic distance T / travel_clip, clipped to 1 (1 = unreachable / off-map)
+    "grad_forward",  # unit upwind gradient of T, robot-frame forward component
+    "grad_left",  # ... left component
+    "occupied",
+    "explored",
+    "goal",  # highest goal likelihood seen in the cell
+    "frontier",
+)
+
+
+@dataclass
+class GRFieldConfig:
+    """Geometry of the sensor and the map, and the physics constants of the field."""
+
+    map_size: int = 128  # cells per side of the allocentric map, centred on the episode start
+    cell_size: float = 0.15  # metres per cell
+    hfov_deg: float = 79.0
+    camera_height: float = 0.88
+    camera_forward_offset: float = 0.0
+    min_depth: float = 0.05
+    max_depth: float = 10.0
+    floor_height: float = 0.1  # points below are floor
+    robot_height: float = 1.2  # points above are ignored for occupancy
+    robot_radius: float = 0.18
+    goal_threshold: float = 0.5  # max likelihood for a cell to count as goal
+    G: float = 1.0
+    goal_mass: float = 1.0
+    frontier_mass: float = 1.0
+    frontier_mass_goal_seen: float = 0.1
+    frontier_min_distance: float = 0.6  # frontier cells nearer the robot are ignored (m)
+    obstacle_density: float = 0.5  # mass per square metre of occupied cell (repulsive)
+    beta: float = 1.0  # weight of the potential in psi
+    kappa: float = 2.0  # weight of obstacle proximity in psi
+    obstacle_length: float = 0.3  # decay length (m) of the obstacle term
+    unknown_cost: float = 1.5  # extra cost factor of unexplored cells (optimistic planning)
+    ego_size: int = 64  # egocentric feature map side (cells)
+    ego_cell_size: float | None = None  # defaults to cell_size
+    num_waypoints: int = 8
+    waypoint_spacing: float = 0.5  # metres between consecutive waypoints
+    path_step: float = 0.5  # descent step in cells
+    travel_clip: float = 20.0
+
+    def __post_init__(self) -> None:
+        for key in ("map_size", "ego_size", "num_waypoints"):
+            if int(getattr(self, key)) < 1:
+                raise ValueError(f"gr_field.{key}={getattr(self, key)} must be >= 1")
+        if self.map_size < 3:
+            raise ValueError(f"gr_field.map_size={self.map_size} must be >= 3")
+        for key in (
+            "cell_size", "camera_height", "max_depth", "robot_height", "G", "obstacle_length",
+            "unknown_cost", "waypoint_spacing", "path_step", "travel_clip",
+        ):  # fmt: skip
+            if not getattr(self, key) > 0:
+                raise ValueError(f"gr_field.{key}={getattr(self, key)} must be > 0")
+        if not 0.0 < self.hfov_deg < 180.0:
+            raise ValueError(f"gr_field.hfov_deg={self.hfov_deg} must be in (0, 180)")
+        if not 0.0 <= self.min_depth < self.max_depth:
+            raise ValueError(f"gr_field.min_depth={self.min_depth} must be in [0, max_depth)")
+        if not self.floor_height < self.robot_height:
+            raise ValueError(f"gr_field.floor_height={self.floor_height} must be < robot_height")
+        if not 0.0 < self.goal_threshold <= 1.0:
+            raise ValueError(f"gr_field.goal_threshold={self.goal_threshold} must be in (0, 1]")
+        if not 0.0 < self.path_step <= 1.0:
+            raise ValueError(f"gr_field.path_step={self.path_step} must be in (0, 1]")
+        for key in (
+            "goal_mass", "frontier_mass", "frontier_mass_goal_seen", "obstacle_density",
+            "beta", "kappa", "robot_radius", "frontier_min_distance",
+        ):  # fmt: skip
+            if getattr(self, key) < 0:
+                raise ValueError(f"gr_field.{key}={getattr(self, key)} must be >= 0")
+        if self.ego_cell_size is not None and self.ego_cell_size <= 0:
+            raise ValueError(f"gr_field.ego_cell_size={self.ego_cell_size} must be > 0")
+
+
+@dataclass
+class GRFieldOutput:
+    """What one planner tick produces."""
+
+    features: torch.Tensor  # (B, C, h, w) egocentric, channels FEATURE_NAMES
+    waypoints: torch.Tensor  # (B, K, 2) robot frame (forward, left), metres; 0 when no path
+    has_path: torch.Tensor  # (B,) bool
+    goal_seen: torch.Tensor  # (B,) bool: the path leads to the goal, not to the frontier
+    distance: torch.Tensor  # (B,) geodesic distance (metric units) from the robot; inf if none
+
+
+class GRField(nn.Module):
+    """Batched GR field with per-episode map state (see module docstring)."""
+
+    def __init__(self, config: GRFieldConfig | None = None, **overrides) -> None:
+        super().__init__()
+        if config is None:
+            config = GRFieldConfig(**overrides)
+        elif overrides:
+            raise ValueError("pass either a GRFieldConfig or keyword overrides, not both")
+        self.config = config
+        self.grid = centred_grid(config.map_size, config.cell_size)
+        self.register_buffer("map_state", torch.zeros(0, 4, *self.grid.shape), persistent=False)
+        self._last: dict | None = None
+
+    @property
+    def num_channels(self) -> int:
+        return len(FEATURE_NAMES)
+
+    def reset(self, batch_indices=None) -> None:
+        """Clear the map of the given batch elements (all, and forget the batch size, if None)."""
+        if batch_indices is None:
+            self.map_state = torch.zeros(0, 4, *self.grid.shape, device=self.map_state.device)
+            self._last = None
+            return
+        idx = torch.as_tensor(batch_indices, dtype=torch.long).reshape(-1)
+        if idx.numel() and (idx.min() < 0 or idx.max() >= self.map_state.shape[0]):
+            raise ValueError(
+                f"batch_indices {idx.tolist()} out of range for batch {self.map_state.shape[0]}"
+            )
+        self.map_state[idx.to(self.map_state.device)] = 0.0
+
+    # ------------------------------------------------------------------ update
+
+    def _inputs(self, obs: dict, goal_likelihood):
+        """Validate and convert observations -> depth (B, H, W), pose (B, 3), goal (B, H*W)."""
+        if "depth" not in obs or "pose" not in obs:
+            raise ValueError(f"obs must contain 'depth' and 'pose', got keys {sorted(obs)}")
+        device = self.map_state.device
+        depth = torch.as_tensor(obs["depth"], device=device).float()
+        if depth.ndim == 4 and depth.shape[-1] == 1:
+            depth = depth[..., 0]
+        if depth.ndim != 3:
+            raise ValueError(f"obs['depth'] must be (B, H, W[, 1]), got {tuple(depth.shape)}")
+        pose = torch.as_tensor(obs["pose"], device=device).float()
+        if pose.shape != (depth.shape[0], 3):
+            raise ValueError(
+                f"obs['pose'] must be (B={depth.shape[0]}, 3), got {tuple(pose.shape)}"
+            )
+        if not torch.isfinite(pose).all():
+            raise ValueError("obs['pose'] contains NaN or inf")
+        goal = None
+        if goal_likelihood is not None:
+            goal = torch.as_tensor(goal_likelihood, device=device).float()
+            if goal.ndim == 4 and goal.shape[-1] == 1:
+                goal = goal[..., 0]
+            if goal.shape != depth.shape:
+                raise ValueError(
+                    f"goal_likelihood must match depth {tuple(depth.shape)}, "
+                    f"got {tuple(goal.shape)}"
+                )
+            goal = goal.reshape(depth.shape[0], -1)  # (B, H*W)
+        return depth, pose, goal
+
+    def update(self, obs: dict, goal_likelihood=None) -> GRFieldOutput:
+        """Integrate one observation per batch element and recompute the field.
+
+        Args:
+            obs: dict with ``depth`` (B, H, W, 1) or (B, H, W) metres and ``pose`` (B, 3).
+            goal_likelihood: (B, H, W) per-pixel probability that the pixel shows the goal, or
+                None (then only the frontier attracts).
+        """
+        cfg = self.config
+        depth, pose, goal = self._inputs(obs, goal_likelihood)
+        B = depth.shape[0]
+        if self.map_state.shape[0] == 0:
+            self.map_state = empty_map(B, self.grid, device=self.map_state.device)
+        elif self.map_state.shape[0] != B:
+            raise ValueError(
+                f"batch size changed from {self.map_state.shape[0]} to {B}; call reset() first"
+            )
+        points, valid = project_depth(
+            depth, cfg.hfov_deg, pose, cfg.camera_height, cfg.camera_forward_offset,
+            cfg.min_depth, cfg.max_depth,
+        )  # (B, N, 3), (B, N)  # fmt: skip
+        heading = torch.stack([torch.cos(pose[:, 2]), torch.sin(pose[:, 2])], dim=-1)  # (B, 2)
+        update_map(
+            self.map_state, self.grid, points, valid, pose, goal,
+            image_shape=tuple(depth.shape[1:]),
+            camera_xy=pose[:, :2] + cfg.camera_forward_offset * heading,
+            floor_height=cfg.floor_height, max_height=cfg.robot_height,
+            robot_radius=cfg.robot_radius,
+        )  # fmt: skip
+        return self._compute(pose)
+
+    def _compute(self, pose: torch.Tensor) -> GRFieldOutput:
+        """Masses -> potential -> metric -> geodesics -> outputs, from the current map."""
+        cfg, h = self.config, self.config.cell_size
+        layers = map_layers(self.map_state)
+        occupied, explored = layers["occupied"], layers["explored"]  # (B, H, W) bool
+        robot_xy = pose[:, :2] - torch.tensor(
+            [self.grid.origin_x, self.grid.origin_y], device=pose.device
+        )  # (B, 2) metric from the grid's lower-left corner
+        # the robot's own surroundings (under and behind the camera) are no frontier
+        frontier = frontier_mask(explored, occupied) & ~self._near(
+            robot_xy, cfg.frontier_min_distance
+        )  # (B, H, W)
+        goal_cells = (layers["goal"] >= cfg.goal_threshold) & explored  # (B, H, W)
+        goal_seen = goal_cells.flatten(1).any(dim=1)  # (B,)
+
+        rho_goal = normalise_mass(layers["goal"] * goal_cells, cfg.goal_mass, h)  # (B, H, W)
+        f_total = torch.where(goal_seen, cfg.frontier_mass_goal_seen, cfg.frontier_mass)
+        rho_front = normalise_mass(frontier.float(), f_total[:, None, None], h)  # (B, H, W)
+        rho = rho_goal + rho_front - cfg.obstacle_density * occupied.float()  # (B, H, W)
+        phi = solve_poisson(rho, h, cfg.G)  # (B, H, W)
+        proximity = obstacle_proximity(occupied, h, cfg.obstacle_length)  # (B, H, W)
+        psi = conformal_log_factor(phi, proximity, cfg.beta, cfg.kappa)  # (B, H, W)
+        cost = torch.exp(psi) * (1.0 + (cfg.unknown_cost - 1.0) * (~explored).float())
+
+        # goals sit on obstacles: the robot's centre reaches the free cells within its radius
+        k = math.ceil((cfg.robot_radius + h) / h)
+        halo = F.max_pool2d(goal_cells.float()[:, None], 2 * k + 1, 1, k)[:, 0] > 0  # (B, H, W)
+        standoff = halo & ~occupied  # (B, H, W)
+        has_standoff = standoff.flatten(1).any(dim=1)[:, None, None]  # (B, 1, 1)
+        goal_src = torch.where(has_standoff, standoff, goal_cells)  # (B, H, W)
+        sources = torch.where(goal_seen[:, None, None], goal_src, frontier)  # (B, H, W)
+        travel, grads = self._travel(cost, occupied, sources, robot_xy)  # (B, H, W), (B, 2, H, W)
+        waypoints, has_path, distance = self._waypoints(travel, robot_xy, pose)
+        phi_hat = conformal_log_factor(phi, torch.zeros_like(phi), 1.0, 0.0)  # (B, H, W)
+        t_feat = torch.where(
+            torch.isfinite(travel), (travel / cfg.travel_clip).clamp(max=1.0), 1.0
+        )  # (B, H, W)
+        allo = torch.stack(
+            [phi_hat, psi, t_feat, grads[:, 0], grads[:, 1], occupied.float(), explored.float(),
+             layers["goal"], frontier.float()], dim=1,
+        )  # (B, C, H, W)  # fmt: skip
+        features = self._egocentric(allo, pose)  # (B, C, h, w)
+        self._last = {
+            "phi_hat": phi_hat, "psi": psi, "travel": travel, "occupied": occupied,
+            "explored": explored, "frontier": frontier, "goal": goal_cells,
+            "robot_xy": robot_xy, "yaw": pose[:, 2], "has_path": has_path,
+        }  # fmt: skip
+        return GRFieldOutput(features, waypoints, has_path, goal_seen & has_path, distance)
+
+    def _near(self, xy: torch.Tensor, radius: float) -> torch.Tensor:
+        """(B, H, W) bool: cell centres within ``radius`` of metric points ``xy`` (B, 2)."""
+        h, (H, W) = self.grid.cell_size, self.grid.shape
+        cx = (torch.arange(W, device=xy.device, dtype=xy.dtype) + 0.5) * h  # (W,)
+        cy = (torch.arange(H, device=xy.device, dtype=xy.dtype) + 0.5) * h  # (H,)
+        dx = cx[None, None, :] - xy[:, 0, None, None]  # (B, 1, W)
+        dy = cy[None, :, None] - xy[:, 1, None, None]  # (B, H, 1)
+        return dx**2 + dy**2 <= radius**2  # (B, H, W)
+
+    def _travel(self, cost, occupied, sources, robot_xy):
+        """Geodesic distance T (B, H, W) and its unit upwind gradient (B, 2, H, W)."""
+        cfg, h = self.config, self.config.cell_size
+        xs, ys = self.grid.cell_centres()  # (H, W) each, map frame
+        xs, ys = xs - self.grid.origin_x, ys - self.grid.origin_y
+        travel = np.full(cost.shape, np.inf)
+        grads = np.zeros((cost.shape[0], 2, *cost.shape[1:]))
+        cost_np, occ_np = cost.detach().cpu().numpy(), occupied.cpu().numpy()
+        src_np, robot_np = sources.cpu().numpy(), robot_xy.detach().cpu().numpy()
+        for b in range(cost.shape[0]):
+            if not src_np[b].any():
+                continue
+            blocked = inflate_obstacles(occ_np[b], cfg.robot_radius, h)  # (H, W)
+            # the robot stands where it is: never block its own footprint unless truly occupied
+            own = np.hypot(xs - robot_np[b, 0], ys - robot_np[b, 1]) <= cfg.robot_radius + h
+            blocked &= ~(own & ~occ_np[b])
+            blocked &= ~src_np[b]
+            T = geodesic_distance(cost_np[b], src_np[b], blocked, h)  # (H, W)
+            gx, gy = upwind_gradient(T, h)
+            norm = np.maximum(np.hypot(gx, gy), 1e-12)
+            travel[b], grads[b, 0], grads[b, 1] = T, gx / norm, gy / norm
+        return (
+            torch.from_numpy(travel).float().to(cost.device),
+            torch.from_numpy(grads).float().to(cost.device),
+        )
+
+    def _waypoints(self, travel, robot_xy, pose):
+        """Resample the descent path at ``waypoint_spacing``: (B, K, 2) robot frame, (B,), (B,)."""
+        cfg, h = self.config, self.config.cell_size
+        K, ds = cfg.num_waypoints, cfg.waypoint_spacing
+        B = travel.shape[0]
+        out = torch.zeros(B, K, 2)
+        has_path = torch.zeros(B, dtype=torch.bool)
+        distance = torch.full((B,), math.inf)
+        T_np, robot_np = travel.cpu().numpy(), robot_xy.detach().cpu().numpy()
+        for b in range(B):
+            path = extract_path(T_np[b], robot_np[b], h, cfg.path_step, max_length=K * ds + h)
+            if len(path) == 0:
+                continue
+            seg = np.linalg.norm(np.diff(path, axis=0), axis=1)  # (N - 1,)
+            arc = np.concatenate([[0.0], np.cumsum(seg)])  # (N,)
+            r, c = np.floor(path[-1][::-1] / h).astype(int)
+            reached = T_np[b][r, c] == 0.0 or arc[-1] >= K * ds - 1e-6
+            if not reached:
+                continue
+            s = np.minimum(np.arange(1, K + 1) * ds, arc[-1])  # (K,)
+            pts = np.stack([np.interp(s, arc, path[:, 0]), np.interp(s, arc, path[:, 1])], -1)
+            out[b] = torch.from_numpy(pts).float()  # (K, 2) metric from grid corner
+            has_path[b] = True
+            r0, c0 = np.floor(robot_np[b][::-1] / h).astype(int)
+            distance[b] = float(T_np[b][r0, c0])
+        origin = torch.tensor([self.grid.origin_x, self.grid.origin_y])
+        ego = world_to_ego((out + origin).to(pose.device), pose)  # (B, K, 2)
+        ego = torch.where(has_path.to(pose.device)[:, None, None], ego, 0.0)
+        return ego, has_path.to(pose.device), distance.to(pose.device)
+
+    def _egocentric(self, allo: torch.Tensor, pose: torch.Tensor) -> torch.Tensor:
+        """Rotate/crop allocentric maps (B, C, H, W) into the robot frame -> (B, C, h, w).
+
+        The output follows the GridSpec convention in the robot frame: columns run forward,
+        rows run left, the robot sits at the centre. Vector channels are rotated too.
+        """
+        cfg = self.config
+        n, ec = cfg.ego_size, cfg.ego_cell_size or cfg.cell_size
+        B = allo.shape[0]
+        offs = (torch.arange(n, device=allo.device, dtype=allo.dtype) + 0.5 - n / 2) * ec  # (n,)
+        left, fwd = torch.meshgrid(offs, offs, indexing="ij")  # (n, n) each
+        ego = torch.stack([fwd, left], dim=-1).reshape(1, -1, 2).expand(B, -1, -1)  # (B, n*n, 2)
+        world = ego_to_world(ego, pose.to(allo.dtype))  # (B, n*n, 2)
+        g = self.grid
+        gx = 2.0 * (world[..., 0] - g.origin_x) / (g.width * g.cell_size) - 1.0  # (B, n*n)
+        gy = 2.0 * (world[..., 1] - g.origin_y) / (g.height * g.cell_size) - 1.0  # (B, n*n)
+        grid = torch.stack([gx, gy], dim=-1).reshape(B, n, n, 2)  # (B, n, n, 2)
+        feats = F.grid_sample(
+            allo, grid, mode="bilinear", padding_mode="zeros", align_corners=False
+        )
+        inside = ((gx.abs() <= 1) & (gy.abs() <= 1)).reshape(B, 1, n, n).to(allo.dtype)
+        t = FEATURE_NAMES.index("travel")
+        feats[:, t : t + 1] = feats[:, t : t + 1] * inside + (1.0 - inside)
+        c, s = torch.cos(pose[:, 2])[:, None, None], torch.sin(pose[:, 2])[:, None, None]
+        i = FEATURE_NAMES.index("grad_forward")
+        gxw, gyw = feats[:, i].clone(), feats[:, i + 1].clone()  # (B, n, n) map-frame components
+        feats[:, i], feats[:, i + 1] = c * gxw + s * gyw, -s * gxw + c * gyw
+        return feats  # (B, C, n, n)
+
+    # ------------------------------------------------------------------ extras
+
+    def christoffel(self) -> torch.Tensor:
+        """Christoffel symbols (B, 2, 2, 2, H, W) of the last metric (call after update)."""
+        if self._last is None:
+            raise RuntimeError("GRField.christoffel() needs a prior update()")
+        return christoffel_conformal(self._last["psi"], self.config.cell_size)
+
+    def render(self, index: int = 0, scale: int = 2) -> np.ndarray:
+        """Top-down picture (H * scale, W * scale, 3) uint8 of batch element ``index``.
+
+        Background: potential; dark: unexplored; black: obstacles; cyan: frontier; red: goal;
+        white: the full geodesic path from the robot (orange) to the source.
+        """
+        if self._last is None:
+            raise RuntimeError("GRField.render() needs a prior update()")
+        last, h = self._last, self.config.cell_size
+        if not 0 <= index < last["travel"].shape[0]:
+            raise ValueError(f"index={index} out of range for batch {last['travel'].shape[0]}")
+        robot = last["robot_xy"][index].cpu().numpy()  # (2,) metric
+        path = None
+        if bool(last["has_path"][index]):
+            metric = extract_path(last["travel"][index].cpu().numpy(), robot, h, 0.5)  # (N, 2)
+            path = metric[:, ::-1] / h - 0.5  # (N, 2) fractional (row, col)
+        layer = {k: last[k][index].cpu().numpy() for k in ("occupied", "explored", "frontier")}
+        return render_field(
+            last["phi_hat"][index].cpu().numpy(), layer["occupied"], layer["explored"],
+            layer["frontier"], last["goal"][index].cpu().numpy(), path,
+            (robot[1] / h - 0.5, robot[0] / h - 0.5), float(last["yaw"][index]), scale,
+        )  # fmt: skip
