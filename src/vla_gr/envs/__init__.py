@@ -1,1 +1,47 @@
-"""vla_gr.envs."""
+"""vla_gr.envs: the MuJoCo house world and the ``VLAGR/ObjectNav-v0`` task.
+
+Importing this package registers the Gymnasium id ``VLAGR/ObjectNav-v0``; without the
+import, ``gymnasium.make("vla_gr.envs:VLAGR/ObjectNav-v0")`` imports it on demand.
+Heavier names (the env class, the expert, episode helpers) load lazily on first use.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from gymnasium.envs.registration import register, registry
+
+ENV_ID = "VLAGR/ObjectNav-v0"
+
+if ENV_ID not in registry:
+    register(
+        id=ENV_ID,
+        entry_point="vla_gr.envs.nav_env:ObjectNavEnv",
+        # Truncation is the env's own (``max_episode_steps`` kwarg, default 1000), so metrics
+        # and ``truncated`` agree; gymnasium.make(..., max_episode_steps=N) also works.
+        max_episode_steps=None,
+    )
+
+_LAZY = {
+    "ObjectNavEnv": "vla_gr.envs.nav_env",
+    "compile_scene": "vla_gr.envs.nav_env",
+    "EpisodeSpec": "vla_gr.envs.episodes",
+    "sample_episode": "vla_gr.envs.episodes",
+    "validate_spec": "vla_gr.envs.episodes",
+    "save_episodes": "vla_gr.envs.episodes",
+    "load_episodes": "vla_gr.envs.episodes",
+    "GeodesicExpert": "vla_gr.envs.expert",
+    "EpisodeMeasures": "vla_gr.envs.metrics",
+    "RGBDRenderer": "vla_gr.envs.rendering",
+}
+
+__all__ = ["ENV_ID", *_LAZY]
+
+
+def __getattr__(name: str):
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module 'vla_gr.envs' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy import ndimage
 
 from vla_gr.envs.geodesic import (
     ROBOT_RADIUS,
@@ -86,18 +87,23 @@ class EpisodeSpec:
         return cls(**rec)
 
 
-def goal_field(house: House, instance_id: int) -> np.ndarray:
+def goal_field(house: House, instance_id: int, traversable: np.ndarray | None = None) -> np.ndarray:
     """Geodesic distance (H, W) in metres from goal ``instance_id``'s footprint, for robot centres.
 
-    ``envs.geodesic.goal_distance_field`` when its front escapes the footprint. When the
-    goal's own inflation ring (cells within the robot radius of the footprint) blocks the
-    front, only the *other* obstacles are inflated, so the ring is crossed and every
-    reachable centre gets its distance to the footprint (the quantity that function defines).
+    ``envs.geodesic.goal_distance_field`` when its front can leave the footprint (a
+    traversable cell touches it). When the goal's own inflation ring (cells within the
+    robot radius of the footprint) would trap the front, only the *other* obstacles are
+    inflated, so every reachable centre gets its distance to the footprint (the quantity
+    that function defines). ``traversable`` (H, W) may be passed when already computed.
     """
-    field = goal_distance_field(house, instance_id)  # (H, W)
     footprint = house.object_ids == instance_id  # (H, W)
-    if np.isfinite(field[~footprint]).any():
-        return field
+    if not footprint.any():
+        raise ValueError(f"object {instance_id} has no footprint cells in house {house.seed}")
+    if traversable is None:
+        traversable = traversable_cells(house)
+    ring = ndimage.binary_dilation(footprint, structure=np.ones((3, 3), bool)) & ~footprint
+    if (ring & traversable).any():
+        return goal_distance_field(house, instance_id)  # (H, W)
     others = house.occupancy & ~footprint  # (H, W)
     blocked = inflate_obstacles(others, ROBOT_RADIUS, house.grid.cell_size) & ~footprint
     return geodesic_distance(1.0, footprint, blocked, house.grid.cell_size)

@@ -1,0 +1,422 @@
+"""``VLAGR/ObjectNav-v0``: find the instructed object in a procedural MuJoCo house.
+
+Observation: ``rgb`` uint8 (H, W, 3), ``depth`` float32 (H, W, 1) planar metres clipped to
+[0, max_depth], ``pose`` float32 (3,) = (x forward, y left, yaw) relative to the episode
+start, ``instruction`` str, and ``semantic`` int32 (H, W) instance ids when asked for.
+Action: float32 (3,) in [-1, 1] = (linear fraction of 0.5 m/s, angular fraction of
+1.0 rad/s, stop); stop > 0 ends the episode as the agent's STOP.
+
+Collision rule: a step is a collision when the base touched something during the step
+and moved less than half of the commanded distance (a blocked step; sliding along a wall
+at a shallow angle is not a collision).
+
+Episode selection: ``reset(options={"episode": spec})`` runs ``spec``; ``reset(seed=k)``
+runs episode k of the split (or of the ``episodes`` file, modulo its length); a reset
+with neither runs the episode after the previous one. ``options["house"]`` may supply a
+hand-built :class:`House` whose seed matches the spec (for tests and tools).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import string
+from collections import OrderedDict
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import gymnasium as gym
+import mujoco
+import numpy as np
+
+from vla_gr.envs import robot as rb
+from vla_gr.envs.episodes import (
+    EPISODES_PER_SCENE,
+    EpisodeSpec,
+    load_episodes,
+    sample_episode,
+    validate_spec,
+)
+from vla_gr.envs.episodes import (
+    goal_field as episode_goal_field,
+)
+from vla_gr.envs.geodesic import sample_field, traversable_cells
+from vla_gr.envs.metrics import EpisodeMeasures
+from vla_gr.envs.rendering import RGBDRenderer, make_gl_context, tune_model_for_speed
+from vla_gr.envs.scene import House, ObjectInstance
+
+logger = logging.getLogger(__name__)
+
+MAX_LINEAR_SPEED = 0.5  # m/s
+MAX_ANGULAR_SPEED = 1.0  # rad/s
+SUBSTEPS = 5
+BLOCKED_FRACTION = 0.5  # achieved / commanded displacement below this + contact = collision
+INSTRUCTION_MAX_LENGTH = 256
+INSTRUCTION_CHARSET = "".join(c for c in string.printable if c not in "\t\n\r\x0b\x0c")
+
+
+@dataclass
+class _Scene:
+    """A compiled house: model, data, robot handles, lazily made renderers, goal fields."""
+
+    house: House
+    model: mujoco.MjModel
+    data: mujoco.MjData
+    robot: rb.RobotHandles
+    traversable: np.ndarray  # (H, W) bool
+    renderers: dict[tuple[int, bool], RGBDRenderer] = field(default_factory=dict)
+    goal_fields: dict[int, np.ndarray] = field(default_factory=dict)
+
+    def close(self) -> None:
+        for renderer in self.renderers.values():
+            renderer.close()
+        self.renderers.clear()
+
+
+def compile_scene(house: House, image_size: int, control_hz: float, max_depth: float) -> _Scene:
+    """Build the MuJoCo model of ``house`` with the robot, tuned for fast rendering."""
+    from vla_gr.envs.house import house_to_mjcf
+
+    xml = house_to_mjcf(house, robot_xml=rb.robot_body_xml(image_size, image_size))
+    spec = mujoco.MjSpec.from_string(xml)
+    rb.add_robot_actuators(spec)
+    model = spec.compile()
+    handles = rb.configure_robot(model, control_hz, SUBSTEPS)
+    tune_model_for_speed(model, image_size, image_size)
+    extent = float(model.stat.extent)
+    if model.vis.map.zfar * extent < 2.0 * max_depth:
+        model.vis.map.zfar = 2.0 * max_depth / extent
+    return _Scene(
+        house=house,
+        model=model,
+        data=mujoco.MjData(model),
+        robot=handles,
+        traversable=traversable_cells(house),
+    )
+
+
+class ObjectNavEnv(gym.Env):
+    """Language-conditioned ObjectNav in a procedural MuJoCo house (see module docstring)."""
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+
+    def __init__(
+        self,
+        split: str = "val",
+        image_size: int = 64,
+        control_hz: float = 10.0,
+        max_episode_steps: int = 1000,
+        episodes: str | Path | Sequence[EpisodeSpec] | None = None,
+        semantic: bool = False,
+        success_distance: float = 1.0,
+        max_depth: float = 10.0,
+        num_rooms: int | None = None,
+        clutter: float = 1.0,
+        episodes_per_scene: int = EPISODES_PER_SCENE,
+        scene_cache_size: int = 4,
+        render_mode: str | None = None,
+    ) -> None:
+        if split not in ("train", "val", "test"):
+            raise ValueError(f"split={split!r} is not valid; choose one of train, val, test")
+        if not 16 <= int(image_size) <= 512:
+            raise ValueError(f"image_size={image_size} must be in [16, 512]")
+        for name, value in (
+            ("control_hz", control_hz),
+            ("max_episode_steps", max_episode_steps),
+            ("success_distance", success_distance),
+            ("max_depth", max_depth),
+            ("scene_cache_size", scene_cache_size),
+        ):
+            if not value > 0:
+                raise ValueError(f"{name}={value} must be > 0")
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"render_mode={render_mode!r} must be None or 'rgb_array'")
+        self.split = split
+        self.image_size = int(image_size)
+        self.control_hz = float(control_hz)
+        self.max_episode_steps = int(max_episode_steps)
+        self.semantic = bool(semantic)
+        self.success_distance = float(success_distance)
+        self.max_depth = float(max_depth)
+        self.num_rooms = num_rooms
+        self.clutter = float(clutter)
+        self.episodes_per_scene = int(episodes_per_scene)
+        self.scene_cache_size = int(scene_cache_size)
+        self.render_mode = render_mode
+        self.max_linear_speed = MAX_LINEAR_SPEED
+        self.max_angular_speed = MAX_ANGULAR_SPEED
+        if episodes is None:
+            self.episode_list: list[EpisodeSpec] | None = None
+        elif isinstance(episodes, (str, Path)):
+            self.episode_list = load_episodes(episodes)
+        else:
+            self.episode_list = list(episodes)
+            if not self.episode_list:
+                raise ValueError("episodes must not be empty")
+
+        s = self.image_size
+        spaces = {
+            "rgb": gym.spaces.Box(0, 255, (s, s, 3), np.uint8),
+            "depth": gym.spaces.Box(0.0, self.max_depth, (s, s, 1), np.float32),
+            "pose": gym.spaces.Box(-np.inf, np.inf, (3,), np.float32),
+            "instruction": gym.spaces.Text(
+                max_length=INSTRUCTION_MAX_LENGTH, min_length=0, charset=INSTRUCTION_CHARSET
+            ),
+        }
+        if self.semantic:
+            spaces["semantic"] = gym.spaces.Box(0, np.iinfo(np.int32).max, (s, s), np.int32)
+        self.observation_space = gym.spaces.Dict(spaces)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (3,), np.float32)
+
+        self._scenes: OrderedDict[tuple, _Scene] = OrderedDict()
+        self._gl = None  # made on first render, so that constructing an env is cheap and fork-safe
+        self._scene: _Scene | None = None
+        self._measures = EpisodeMeasures(self.success_distance)
+        self._episode_index = -1
+        self._steps = 0
+        self._done = True
+        self._last_obs: dict | None = None
+        self.house: House | None = None
+        # ``spec`` stays gymnasium's EnvSpec (wrappers read it); the episode is ``episode_spec``.
+        self.episode_spec: EpisodeSpec | None = None
+        self.goal: ObjectInstance | None = None
+        self.traversable: np.ndarray | None = None
+        self.goal_distance: np.ndarray | None = None
+        self.start_pose_world = np.zeros(3)
+        self.trajectory_world: list[tuple[float, float]] = []
+
+    # ------------------------------------------------------------------ ground truth
+
+    def robot_pose_world(self) -> np.ndarray:
+        """World pose (3,) = (x, y, yaw) of the robot, yaw in (-pi, pi]."""
+        scene = self._require_scene()
+        pose = scene.data.qpos[scene.robot.qpos_adr].copy()  # (3,)
+        pose[2] = rb.wrap_angle(pose[2])
+        return pose
+
+    # ------------------------------------------------------------------ gymnasium API
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        options = dict(options or {})
+        unknown = set(options) - {"episode", "house"}
+        if unknown:
+            raise ValueError(f"unknown reset options {sorted(unknown)}; use 'episode', 'house'")
+        if self.spec is not None and self.spec.max_episode_steps:
+            self.max_episode_steps = int(self.spec.max_episode_steps)
+        house = options.get("house")
+        spec = options.get("episode")
+        if isinstance(spec, dict):
+            spec = EpisodeSpec.from_dict(spec)
+        if spec is None:
+            spec, house = self._episode_at(seed, house)
+        elif not isinstance(spec, EpisodeSpec):
+            raise ValueError(f"options['episode'] must be an EpisodeSpec, got {type(spec)}")
+        self._start_episode(spec, house)
+        obs = self._observe()
+        return obs, self._info()
+
+    def step(self, action):
+        if self._done:
+            raise RuntimeError("step() called before reset() or after the episode ended")
+        act = self.check_action(action)  # (3,)
+        scene = self._scene
+        called_stop = bool(act[2] > 0.0)
+        collided = False
+        if not called_stop:
+            linear = float(act[0]) * self.max_linear_speed
+            angular = float(act[1]) * self.max_angular_speed
+            adr = scene.robot.qpos_adr
+            x0, y0 = scene.data.qpos[adr[0]], scene.data.qpos[adr[1]]
+            touched = rb.drive(scene.model, scene.data, scene.robot, linear, angular, SUBSTEPS)
+            x1, y1 = scene.data.qpos[adr[0]], scene.data.qpos[adr[1]]
+            commanded = abs(linear) / self.control_hz
+            moved = math.hypot(x1 - x0, y1 - y0)
+            collided = touched and commanded > 1e-6 and moved < BLOCKED_FRACTION * commanded
+        x, y = (
+            float(scene.data.qpos[scene.robot.qpos_adr[0]]),
+            float(scene.data.qpos[scene.robot.qpos_adr[1]]),
+        )
+        if not called_stop:
+            self.trajectory_world.append((x, y))
+        distance = sample_field(self.goal_distance, self.house.grid, x, y)
+        self._measures.update((x, y), distance, collided, called_stop)
+        self._steps += 1
+        terminated = called_stop
+        truncated = not terminated and self._steps >= self.max_episode_steps
+        self._done = terminated or truncated
+        obs = self._observe()
+        info = self._info()
+        info["collided"] = bool(collided)
+        return (
+            obs,
+            0.0 if not (terminated and info["success"]) else 1.0,
+            terminated,
+            truncated,
+            info,
+        )
+
+    def render(self):
+        """The last RGB observation (H, W, 3) uint8 (``render_mode="rgb_array"``)."""
+        if self._last_obs is None:
+            return None
+        return self._last_obs["rgb"]
+
+    def close(self) -> None:
+        for scene in self._scenes.values():
+            scene.close()
+        self._scenes.clear()
+        self._scene = None
+        if self._gl is not None:
+            try:
+                self._gl.free()
+            except Exception:  # noqa: BLE001 - best effort at shutdown
+                logger.debug("GLContext.free failed", exc_info=True)
+            self._gl = None
+        super().close()
+
+    # ------------------------------------------------------------------ helpers
+
+    @staticmethod
+    def check_action(action) -> np.ndarray:
+        """Validated, clipped float32 action (3,); ValueError on a wrong shape or NaN/inf."""
+        try:
+            act = np.asarray(action, dtype=np.float32)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"action must be numeric with shape (3,), got {action!r}") from err
+        if act.shape != (3,):
+            raise ValueError(f"action must have shape (3,) = (v, w, stop), got shape {act.shape}")
+        if not np.all(np.isfinite(act)):
+            raise ValueError(f"action must be finite (no NaN/inf), got {act.tolist()}")
+        return np.clip(act, -1.0, 1.0)
+
+    def render_rgbd(self, size: int) -> tuple[np.ndarray, np.ndarray]:
+        """RGB (size, size, 3) uint8 and depth (size, size) float32 from the robot camera."""
+        if not 16 <= int(size) <= 1024:
+            raise ValueError(f"size={size} must be in [16, 1024]")
+        return self._renderer(int(size), False).render(self._require_scene().data)
+
+    def _require_scene(self) -> _Scene:
+        if self._scene is None:
+            raise RuntimeError("no episode: call reset() first")
+        return self._scene
+
+    def _episode_at(self, seed: int | None, house: House | None):
+        index = self._episode_index + 1 if seed is None else int(seed)
+        if index < 0:
+            raise ValueError(f"seed={seed} must be >= 0 (it selects the episode)")
+        self._episode_index = index
+        if self.episode_list is not None:
+            return self.episode_list[index % len(self.episode_list)], house
+        cached = self._cached_house(index)
+        spec = sample_episode(
+            self.split, index, self.num_rooms, self.clutter, self.episodes_per_scene, cached
+        )
+        return spec, house
+
+    def _cached_house(self, index: int) -> House | None:
+        """The house of split episode ``index`` if its scene is cached (skips regeneration)."""
+        from vla_gr.envs.episodes import scene_seed_for
+
+        key = (
+            scene_seed_for(self.split, index, self.episodes_per_scene),
+            self.num_rooms,
+            self.clutter,
+        )
+        scene = self._scenes.get(key)
+        return None if scene is None else scene.house
+
+    def _load_scene(self, spec: EpisodeSpec, house: House | None) -> _Scene:
+        key = ("custom", id(house)) if house is not None else spec.scene_key
+        scene = self._scenes.get(key)
+        if scene is not None:
+            self._scenes.move_to_end(key)
+            return scene
+        if house is None:
+            from vla_gr.envs.house import generate_house
+
+            house = generate_house(spec.scene_seed, num_rooms=spec.num_rooms, clutter=spec.clutter)
+        scene = compile_scene(house, self.image_size, self.control_hz, self.max_depth)
+        self._scenes[key] = scene
+        while len(self._scenes) > self.scene_cache_size:
+            old_key, old = self._scenes.popitem(last=False)
+            if old is not self._scene:
+                old.close()
+            else:  # still running: put it back at the front, evict the next one
+                self._scenes[old_key] = old
+                self._scenes.move_to_end(old_key, last=False)
+                if len(self._scenes) <= self.scene_cache_size + 1:
+                    break
+        logger.debug("compiled scene %s (%d geoms)", key, scene.model.ngeom)
+        return scene
+
+    def _start_episode(self, spec: EpisodeSpec, house: House | None) -> None:
+        scene = self._load_scene(spec, house)
+        goal_field = scene.goal_fields.get(spec.goal_instance_id)
+        if goal_field is None and spec.goal_instance_id in {
+            o.instance_id for o in scene.house.objects
+        }:
+            goal_field = episode_goal_field(scene.house, spec.goal_instance_id)  # (H, W)
+            scene.goal_fields[spec.goal_instance_id] = goal_field
+        start_distance = validate_spec(spec, scene.house, scene.traversable, goal_field)
+        if abs(start_distance - spec.geodesic_start_distance) > 0.05:
+            logger.warning(
+                "episode %s: geodesic start distance %.3f differs from the spec's %.3f",
+                spec.episode_id,
+                start_distance,
+                spec.geodesic_start_distance,
+            )
+        self._scene = scene
+        self.house = scene.house
+        self.episode_spec = spec
+        self.goal = scene.house.object(spec.goal_instance_id)
+        self.traversable = scene.traversable
+        self.goal_distance = goal_field
+        self.start_pose_world = spec.start_pose
+        rb.set_robot_pose(scene.model, scene.data, scene.robot, self.start_pose_world)
+        self.trajectory_world = [(float(spec.start_x), float(spec.start_y))]
+        self._measures.reset((spec.start_x, spec.start_y), start_distance)
+        self._steps = 0
+        self._done = False
+
+    def _renderer(self, size: int, main: bool) -> RGBDRenderer:
+        scene = self._require_scene()
+        renderer = scene.renderers.get((size, main))
+        if renderer is None:
+            if self._gl is None:
+                self._gl = make_gl_context(self.image_size, self.image_size)
+            glob = scene.model.vis.global_
+            glob.offwidth, glob.offheight = max(glob.offwidth, size), max(glob.offheight, size)
+            renderer = RGBDRenderer(
+                scene.model,
+                self._gl,
+                size,
+                size,
+                scene.robot.camera_id,
+                self.max_depth,
+                hidden_groups=(rb.ROBOT_GROUP,),
+            )
+            scene.renderers[(size, main)] = renderer
+        return renderer
+
+    def _observe(self) -> dict:
+        scene = self._scene
+        renderer = self._renderer(self.image_size, True)
+        rgb, depth = renderer.render(scene.data)  # (H, W, 3), (H, W)
+        pose = rb.relative_pose(self.robot_pose_world(), self.start_pose_world)
+        obs = {
+            "rgb": rgb,
+            "depth": depth[..., None],  # (H, W, 1)
+            "pose": pose.astype(np.float32),  # (3,)
+            "instruction": self.episode_spec.instruction,
+        }
+        if self.semantic:
+            obs["semantic"] = renderer.render_segmentation(scene.data)  # (H, W)
+        self._last_obs = obs
+        return obs
+
+    def _info(self) -> dict:
+        info = self._measures.as_info()
+        info["episode_id"] = self.episode_spec.episode_id
+        return info
