@@ -219,3 +219,56 @@ def test_noisy_expert_recovers_and_labels_differ():
         GeodesicExpert(world2, noise_std=0.3, noise_prob=0.1, seed=3), world2, 600
     )
     assert np.array_equal(executed, executed2)
+
+
+# ----------------------------------------------------------------- the real env
+
+VAL_EPISODES = 5
+
+
+@pytest.fixture(scope="module")
+def val_env():
+    gym = pytest.importorskip("gymnasium")
+    import vla_gr.envs  # noqa: F401  (registers VLAGR/ObjectNav-v0)
+
+    env = gym.make("VLAGR/ObjectNav-v0", split="val", image_size=64)
+    yield env
+    env.close()
+
+
+def run_real_episode(env, expert, seed: int):
+    obs, info = env.reset(seed=seed)
+    expert.reset()
+    labels, executed = [], []
+    terminated = truncated = False
+    while not (terminated or truncated):
+        action = expert.act(obs)
+        labels.append(expert.last_label.copy())
+        executed.append(action.copy())
+        obs, _, terminated, truncated, info = env.step(action)
+    return info, np.array(labels), np.array(executed), terminated
+
+
+def test_expert_solves_val_episodes(val_env):
+    expert = GeodesicExpert(val_env)
+    infos = []
+    for k in range(VAL_EPISODES):
+        info, labels, executed, terminated = run_real_episode(val_env, expert, k)
+        assert terminated, f"episode {k}: ran out of steps"
+        assert np.array_equal(labels, executed)
+        infos.append(info)
+    assert all(i["success"] == 1.0 for i in infos), [i["distance_to_goal"] for i in infos]
+    assert np.mean([i["spl"] for i in infos]) > 0.85
+    assert sum(i["collisions"] for i in infos) <= 1
+    for i in infos:  # stopped inside the success radius with the intended margin
+        assert i["distance_to_goal"] <= expert.config.stop_distance + 0.05
+
+
+def test_noisy_expert_solves_val_episodes(val_env):
+    expert = GeodesicExpert(val_env, noise_std=0.2, noise_prob=0.05, seed=0)
+    for k in range(2):
+        info, labels, executed, terminated = run_real_episode(val_env, expert, k)
+        assert terminated and info["success"] == 1.0, f"episode {k}: {info}"
+        differ = np.any(np.abs(labels[:-1, :2] - executed[:-1, :2]) > 1e-6, axis=1)
+        assert differ.mean() > 0.5
+        assert labels[-1][2] > 0 and executed[-1][2] > 0
