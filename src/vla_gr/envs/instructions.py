@@ -82,24 +82,33 @@ def polygon_gap(a: np.ndarray, b: np.ndarray) -> float:
 def neighbour_categories(house: House, obj: ObjectInstance) -> set[str]:
     """Categories (other than obj's) of pieces in obj's room within ``NEAR_DISTANCE``."""
     fp = obj.footprint()
+    reach = np.hypot(*obj.half_extents) + NEAR_DISTANCE
     out = set()
     for other in house.objects:
         if other.category == obj.category or other.room_index != obj.room_index:
             continue
+        if other.category in out:
+            continue
+        if np.hypot(other.x - obj.x, other.y - obj.y) > reach + np.hypot(*other.half_extents):
+            continue  # too far for any part of the footprints to come close
         if polygon_gap(fp, other.footprint()) <= NEAR_DISTANCE:
             out.add(other.category)
     return out
 
 
-def matches(house: House, obj: ObjectInstance, desc: Description) -> bool:
-    """Whether ``obj`` fits every attribute of ``desc``."""
+def matches(
+    house: House, obj: ObjectInstance, desc: Description, near: set[str] | None = None
+) -> bool:
+    """Whether ``obj`` fits every attribute of ``desc`` (``near``: its neighbour categories)."""
     if obj.category != desc.category:
         return False
     if desc.color is not None and obj.color != desc.color:
         return False
     if desc.room is not None and house.rooms[obj.room_index].room_type != desc.room:
         return False
-    return desc.near is None or desc.near in neighbour_categories(house, obj)
+    if desc.near is None:
+        return True
+    return desc.near in (neighbour_categories(house, obj) if near is None else near)
 
 
 def unique_descriptions(house: House, instance_id: int) -> list[Description]:
@@ -115,7 +124,12 @@ def unique_descriptions(house: House, instance_id: int) -> list[Description]:
     candidates += [Description(goal.category, near=n) for n in near]
     candidates += [Description(goal.category, color=goal.color, near=n) for n in near]
     rivals = [o for o in house.objects if o.category == goal.category and o is not goal]
-    return [d for d in candidates if not any(matches(house, o, d) for o in rivals)]
+    rival_near = [neighbour_categories(house, o) if near else set() for o in rivals]
+    return [
+        d
+        for d in candidates
+        if not any(matches(house, o, d, n) for o, n in zip(rivals, rival_near))
+    ]
 
 
 def distractors(house: House, instance_id: int) -> list[int]:
