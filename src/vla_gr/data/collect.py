@@ -1,0 +1,256 @@
+"""``vla-gr collect``: run the geodesic expert on a range of episodes and write a zarr store.
+
+Episodes run in ``collect.workers`` worker processes (multiprocessing 'spawn': MuJoCo GL
+contexts do not survive fork) and are written in episode order by the main process, one
+committed episode at a time (see ``data.store``), so an interrupted run loses at most the
+episodes in flight. The expert may execute DART-noised actions (``expert.noise_std``,
+``expert.noise_prob``); the store keeps its noise-free label for the same observation.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing as mp
+import sys
+import time
+from collections.abc import Iterable, Iterator, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from vla_gr import __version__
+from vla_gr.data.store import EpisodeRecord, EpisodeStore, StoreError
+
+log = logging.getLogger(__name__)
+
+
+def env_kwargs_from_config(cfg, split: str, semantic: bool = True) -> dict:
+    """Keyword arguments of ``gymnasium.make("VLAGR/ObjectNav-v0", ...)`` from a VLAGRConfig."""
+    kwargs = {
+        "split": split,
+        "image_size": cfg.env.image_size,
+        "control_hz": cfg.env.control_hz,
+        "max_episode_steps": cfg.env.max_episode_steps,
+        "success_distance": cfg.env.success_distance,
+        "semantic": semantic,
+    }
+    if cfg.env.episodes:
+        kwargs["episodes"] = cfg.env.episodes
+    return kwargs
+
+
+def make_env(env_kwargs: dict):
+    """A ``VLAGR/ObjectNav-v0`` env (registration happens on ``import vla_gr.envs``)."""
+    import gymnasium as gym
+
+    from vla_gr.envs import ENV_ID
+
+    return gym.make(ENV_ID, **env_kwargs)
+
+
+def _jsonable(value):
+    """Plain-Python copy of an info value (numpy scalars/arrays -> float/int/list)."""
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def run_expert_episode(env, expert, index: int, seed: int = 0) -> tuple[EpisodeRecord, dict]:
+    """Run ``expert`` on episode ``index`` of ``env``'s split; returns (record, final info).
+
+    Step t stores the observation before action t and the expert's noise-free label for it;
+    the executed action may be noisy. ``seed`` and ``index`` seed the expert's noise.
+    The env must be made with ``semantic=True`` (for the goal mask).
+    """
+    expert.rng = np.random.default_rng((seed, index))
+    obs, info = env.reset(seed=index)
+    if "semantic" not in obs:
+        raise ValueError("the env must be made with semantic=True to record goal masks")
+    expert.reset()
+    u = env.unwrapped
+    goal_id = int(u.goal.instance_id)
+    rgb, depth, pose, mask, labels = [], [], [], [], []
+    done = False
+    while not done:
+        action = expert.act(obs)  # (3,) executed
+        rgb.append(obs["rgb"])  # (H, W, 3)
+        depth.append(obs["depth"])  # (H, W, 1)
+        pose.append(obs["pose"])  # (3,)
+        mask.append(obs["semantic"] == goal_id)  # (H, W)
+        labels.append(np.asarray(expert.last_label, dtype=np.float32))  # (3,)
+        obs, _, terminated, truncated, info = env.step(action)
+        done = terminated or truncated
+    spec = u.episode_spec.to_dict()
+    record = EpisodeRecord(
+        episode_index=index,
+        rgb=np.stack(rgb),  # (T, H, W, 3)
+        depth=np.stack(depth),  # (T, H, W, 1)
+        pose=np.stack(pose),  # (T, 3)
+        action=np.stack(labels),  # (T, 3)
+        goal_mask=np.stack(mask),  # (T, H, W)
+        instruction=str(spec.get("instruction", obs.get("instruction", ""))),
+        spec=_jsonable(spec),
+        metrics=_jsonable(info),
+    )
+    return record, record.metrics
+
+
+# ----------------------------------------------------------------------------- workers
+
+_WORKER: dict = {}
+
+
+def _init_worker(env_kwargs: dict, expert_kwargs: dict, seed: int) -> None:
+    """Per-process env + expert, made once and reused for every episode of the worker."""
+    from vla_gr.envs.expert import GeodesicExpert
+
+    env = make_env(env_kwargs)
+    _WORKER.update(env=env, expert=GeodesicExpert(env, **expert_kwargs), seed=seed)
+
+
+def _work(index: int) -> EpisodeRecord:
+    record, _ = run_expert_episode(_WORKER["env"], _WORKER["expert"], index, _WORKER["seed"])
+    return record
+
+
+def iter_expert_episodes(
+    indices: Sequence[int], env_kwargs: dict, expert_kwargs: dict, seed: int = 0, workers: int = 1
+) -> Iterator[EpisodeRecord]:
+    """Records of episodes ``indices``, in that order, from ``workers`` spawned processes.
+
+    With ``workers == 1`` everything runs in this process.
+    """
+    if workers < 1:
+        raise ValueError(f"workers={workers} must be >= 1")
+    if not indices:
+        return
+    if workers == 1 or len(indices) <= 1:
+        _init_worker(env_kwargs, expert_kwargs, seed)
+        try:
+            for index in indices:
+                yield _work(index)
+        finally:
+            _WORKER.pop("env").close()
+            _WORKER.clear()
+        return
+    ctx = mp.get_context("spawn")
+    n = min(workers, len(indices))
+    with ctx.Pool(n, initializer=_init_worker, initargs=(env_kwargs, expert_kwargs, seed)) as pool:
+        yield from pool.imap(_work, indices, chunksize=1)
+
+
+# ----------------------------------------------------------------------------- the command
+
+
+def open_output_store(path: Path, mode: str, image_size: int, info: dict) -> EpisodeStore:
+    """Create or open the output store according to ``mode`` (refuse | append | overwrite)."""
+    if mode not in ("refuse", "append", "overwrite"):
+        raise ValueError(f"collect.mode={mode!r} is not valid; choose refuse, append, overwrite")
+    if path.exists():
+        if mode == "refuse":
+            raise FileExistsError(
+                f"store {path} already exists; pass collect.mode=append to add episodes "
+                "or collect.mode=overwrite to replace it"
+            )
+        if mode == "append":
+            store = EpisodeStore.open(path, mode="a")
+            for key in ("split", "image_size", "control_hz"):
+                if key in store.info and store.info[key] != info[key]:
+                    raise StoreError(
+                        f"cannot append to {path}: it holds {key}={store.info[key]!r}, "
+                        f"this run has {key}={info[key]!r}"
+                    )
+            return store
+    return EpisodeStore.create(path, image_size, overwrite=mode == "overwrite", info=info)
+
+
+def collect(cfg) -> dict:
+    """Run ``vla-gr collect`` for a validated ``VLAGRConfig``; returns the summary dict."""
+    from tqdm import tqdm
+
+    c = cfg.collect
+    path = Path(c.output)
+    env_kwargs = env_kwargs_from_config(cfg, c.split, semantic=True)
+    expert_kwargs = {"noise_std": cfg.expert.noise_std, "noise_prob": cfg.expert.noise_prob}
+    info = {
+        "split": c.split,
+        "image_size": cfg.env.image_size,
+        "control_hz": cfg.env.control_hz,
+        "max_episode_steps": cfg.env.max_episode_steps,
+        "success_distance": cfg.env.success_distance,
+        "expert": expert_kwargs,
+        "seed": cfg.seed,
+        "vla_gr_version": __version__,
+    }
+    store = open_output_store(path, c.mode, cfg.env.image_size, info)
+    wanted = list(range(c.first_episode, c.first_episode + c.num_episodes))
+    present = set(store.episode_indices.tolist())
+    todo = [i for i in wanted if i not in present]
+    if len(todo) < len(wanted):
+        log.info(
+            "%d of %d episodes already in %s; skipped", len(wanted) - len(todo), len(wanted), path
+        )
+    t0 = time.perf_counter()
+    frames, metrics = 0, []
+    records: Iterable[EpisodeRecord] = iter_expert_episodes(
+        todo, env_kwargs, expert_kwargs, cfg.seed, c.workers
+    )
+    bar = tqdm(total=len(todo), desc=f"collect {c.split}", unit="ep", disable=not c.progress)
+    with bar:
+        for record in records:
+            store.append(record)
+            frames += len(record)
+            metrics.append(record.metrics)
+            bar.update(1)
+            bar.set_postfix(frames=frames)
+    elapsed = time.perf_counter() - t0
+    summary = {
+        "store": str(path),
+        "episodes": len(metrics),
+        "frames": frames,
+        "seconds": elapsed,
+        "frames_per_s": frames / elapsed if elapsed > 0 else 0.0,
+        "expert_sr": float(np.mean([m.get("success", 0.0) for m in metrics])) if metrics else 0.0,
+        "expert_spl": float(np.mean([m.get("spl", 0.0) for m in metrics])) if metrics else 0.0,
+        "store_episodes": store.num_episodes,
+        "store_frames": store.num_frames,
+    }
+    log.info(
+        "collected %d episodes, %d frames in %.1f s (%.0f frames/s), expert SR %.3f SPL %.3f; "
+        "store %s now holds %d episodes / %d frames",
+        summary["episodes"],
+        frames,
+        elapsed,
+        summary["frames_per_s"],
+        summary["expert_sr"],
+        summary["expert_spl"],
+        path,
+        store.num_episodes,
+        store.num_frames,
+    )
+    return summary
+
+
+def run_from_cli(config_name: str, overrides: Sequence[str]) -> int:
+    """``vla-gr collect [--config-name NAME] [key=value ...]``; returns the exit code."""
+    from vla_gr.configs import load_config
+
+    _, cfg = load_config(config_name, overrides)
+    try:
+        collect(cfg)
+    except (FileExistsError, StoreError) as err:
+        log.error("%s", err)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    from vla_gr.cli import module_main
+
+    sys.exit(module_main("collect"))

@@ -1,0 +1,90 @@
+"""``vla-gr collect`` end to end on config_debug: a valid store holding the expert's labels."""
+
+import numpy as np
+import pytest
+
+from vla_gr.cli import main
+from vla_gr.configs import load_config
+from vla_gr.data.collect import env_kwargs_from_config, make_env
+from vla_gr.data.dataset import EpisodeWindowDataset
+from vla_gr.data.store import EpisodeStore
+
+NOISE = ["expert.noise_std=0.3", "expert.noise_prob=0.1"]
+
+
+def _collect(path, *extra):
+    args = ["collect", "--config-name", "config_debug", f"collect.output={path}"]
+    return main([*args, "collect.split=val", *NOISE, *extra])
+
+
+def _replay(index: int, overrides):
+    """Re-run episode ``index`` step by step: (labels (T, 3), executed actions (T, 3))."""
+    from vla_gr.envs.expert import GeodesicExpert
+
+    _, cfg = load_config("config_debug", overrides)
+    env = make_env(env_kwargs_from_config(cfg, "val", semantic=True))
+    expert = GeodesicExpert(env, cfg.expert.noise_std, cfg.expert.noise_prob)
+    expert.rng = np.random.default_rng((cfg.seed, index))  # as collect seeds it
+    obs, _ = env.reset(seed=index)
+    expert.reset()
+    labels, executed, done = [], [], False
+    while not done:
+        action = expert.act(obs)
+        labels.append(expert.last_label.copy())
+        executed.append(action)
+        obs, _, terminated, truncated, _ = env.step(action)
+        done = terminated or truncated
+    env.close()
+    return np.array(labels), np.array(executed)
+
+
+@pytest.fixture(scope="module")
+def collected(tmp_path_factory):
+    path = tmp_path_factory.mktemp("collect") / "val.zarr"
+    assert _collect(path) == 0
+    return path
+
+
+def test_store_is_valid_and_holds_expert_labels(collected):
+    store = EpisodeStore.open(collected)
+    assert store.num_episodes == 2 and not store.has_uncommitted()
+    np.testing.assert_array_equal(store.episode_indices, [0, 1])
+    assert store.image_size == (32, 32)
+    assert store.info["split"] == "val" and store.info["expert"]["noise_std"] == 0.3
+    labels, executed = _replay(1, NOISE)
+    ep = store.episode(1)
+    assert len(ep["action"]) == len(labels)
+    np.testing.assert_array_equal(ep["action"], labels.astype(np.float32))
+    # The stored action is the noise-free label, not the (noisy) executed one.
+    assert not np.allclose(ep["action"][:, :2], executed[:, :2])
+    assert ep["action"][-1, 2] > 0 or store.metrics(1)["steps"] == 300  # STOP or budget
+    assert store.episode(0)["pose"][0].tolist() == [0.0, 0.0, 0.0]  # pose from the start
+    assert ep["goal_mask"].any()  # the goal is seen at some point
+    assert store.metrics(0).keys() >= {"success", "spl", "collisions", "path_length"}
+    assert store.spec(0)["split"] == "val" and store.instruction(0) == store.spec(0)["instruction"]
+    # Statistics cover exactly the stored actions.
+    all_actions = store.data_array("action")[: store.num_frames]
+    np.testing.assert_allclose(store.stats["action"]["max"], all_actions.max(0), rtol=1e-6)
+    # The dataset reads it.
+    ds = EpisodeWindowDataset(collected, n_obs_steps=2, horizon=8, split="all")
+    assert len(ds) == store.num_frames
+    assert ds[0]["rgb"].shape == (2, 3, 32, 32)
+
+
+def test_refuse_append_overwrite(collected, tmp_path):
+    import shutil
+
+    path = tmp_path / "copy.zarr"
+    shutil.copytree(collected, path)
+    ends = EpisodeStore.open(path).episode_ends
+    assert _collect(path) == 2  # refuse (default): clear error, store untouched
+    np.testing.assert_array_equal(EpisodeStore.open(path).episode_ends, ends)
+    # Append episodes 1..2: episode 1 is present and skipped, only 2 is run.
+    assert _collect(path, "collect.mode=append", "collect.first_episode=1") == 0
+    store = EpisodeStore.open(path)
+    np.testing.assert_array_equal(store.episode_indices, [0, 1, 2])
+    np.testing.assert_array_equal(store.episode_ends[:2], ends)
+    # Appending with another image size is refused with a reason.
+    assert _collect(path, "collect.mode=append", "env.image_size=48") == 2
+    assert _collect(path, "collect.mode=overwrite", "collect.num_episodes=1") == 0
+    assert EpisodeStore.open(path).num_episodes == 1
