@@ -165,19 +165,23 @@ def _tv_monitor(hx, hy, h, c) -> list[Geom]:
 
 def _plant(hx, hy, h, c) -> list[Geom]:
     radius = min(hx, hy)
-    pot_r = radius * 0.7
-    pot_half = 0.15
-    top_r = radius * 0.7
-    crown_r = radius
-    crown_z = max(h - 2 * top_r - crown_r * 0.4, 2 * pot_half + crown_r * 0.6)
-    return [
+    pot_r, pot_half = radius * 0.7, 0.15
+    crown_r, leaf_r, top_r = radius * 0.75, radius * 0.5, radius * 0.55
+    crown_z = max(h - 2 * top_r - crown_r * 0.3, 2 * pot_half + crown_r)
+    geoms = [
         Geom("pot", "cylinder", (pot_r, pot_half), (0.0, 0.0, pot_half), _POT),
+        Geom("soil", "cylinder", (pot_r * 0.9, 0.01), (0.0, 0.0, 2 * pot_half), _DARK),
         Geom(
-            "stem", "cylinder", (0.02, (crown_z - 0.2) / 2), (0.0, 0.0, (crown_z + 0.2) / 2), _WOOD
+            "stem", "cylinder", (0.02, (crown_z - 0.3) / 2), (0.0, 0.0, (crown_z + 0.3) / 2), _WOOD
         ),
         Geom("foliage", "sphere", (crown_r,), (0.0, 0.0, crown_z), c),
         Geom("top", "sphere", (top_r,), (0.0, 0.0, h - top_r), shade(c, 1.15)),
     ]
+    for k in range(3):  # leaf clusters around the crown, inside the footprint
+        angle = 2 * np.pi * k / 3 + 0.5
+        pos = (0.45 * radius * np.cos(angle), 0.45 * radius * np.sin(angle), crown_z - 0.08)
+        geoms.append(Geom(f"leaves{k}", "sphere", (leaf_r,), pos, shade(c, 0.8)))
+    return geoms
 
 
 def _table(hx, hy, h, c) -> list[Geom]:

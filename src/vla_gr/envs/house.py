@@ -176,17 +176,13 @@ def unreachable_problems(
     main_label = int(np.argmax(sizes)) + 1
     pockets = [labels == k for k in range(1, count + 1) if k != main_label]
     main = labels == main_label  # (H, W)
-    kernel = _touch_kernel(house.grid, robot_radius)
-    pad = kernel.shape[0] // 2
+    # Distance (m) from every cell centre to the nearest main-region cell centre.
+    to_main = ndimage.distance_transform_edt(~main) * house.grid.cell_size  # (H, W)
+    reach = robot_radius + 1.5 * house.grid.cell_size
     unreachable = []
     for obj in house.objects:
         rows, cols, inside = footprint_cells(obj, house.grid)
-        r0, r1 = max(rows.start - pad, 0), min(rows.stop + pad, house.grid.height)
-        c0, c1 = max(cols.start - pad, 0), min(cols.stop + pad, house.grid.width)
-        fp = np.zeros((r1 - r0, c1 - c0), bool)
-        fp[rows.start - r0 : rows.stop - r0, cols.start - c0 : cols.stop - c0] = inside
-        near = ndimage.binary_dilation(fp, structure=kernel)  # (h, w)
-        if not (near & main[r0:r1, c0:c1]).any():
+        if not inside.any() or to_main[rows, cols][inside].min() > reach + 1e-9:
             unreachable.append(obj.instance_id)
     return pockets, unreachable
 

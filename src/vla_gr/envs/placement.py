@@ -93,6 +93,13 @@ class Placed:
     essential: bool
     side: str | None  # wall side its back is against, if any
 
+    @property
+    def corners(self) -> np.ndarray:
+        """Footprint corners (4, 2), computed once."""
+        if not hasattr(self, "_corners"):
+            self._corners = self.obj.footprint()
+        return self._corners
+
 
 def rect_corners(x: float, y: float, yaw: float, hx: float, hy: float) -> np.ndarray:
     """Corners (4, 2) of an oriented rectangle, counter-clockwise."""
@@ -137,9 +144,20 @@ class RoomPlacer:
         """Whether a footprint (4, 2) lies in the room, off door zones and other pieces."""
         if not _inside(corners, self.room, margin):
             return False
-        if any(rects_overlap(corners, zone) for zone in self.zones):
-            return False
-        return not any(rects_overlap(corners, p.obj.footprint(), _OBJECT_GAP) for p in self.placed)
+        lo, hi = corners.min(0), corners.max(0)
+        for zone in self.zones:  # door zones are axis-aligned: a box test is exact
+            if (zone.min(0) < hi).all() and (zone.max(0) > lo).all():
+                return False
+        lo, hi = lo - _OBJECT_GAP, hi + _OBJECT_GAP
+        for p in self.placed:
+            if p.obj.room_index != self.room.index:
+                continue  # rooms do not overlap
+            other = p.corners
+            if (other.min(0) >= hi).any() or (other.max(0) <= lo).any():
+                continue  # bounding boxes already apart by the gap
+            if rects_overlap(corners, other, _OBJECT_GAP):
+                return False
+        return True
 
     def wall_pose(self, side: str, along: float, hx: float, hy: float):
         """(x, y, yaw) of a piece with its back against wall ``side`` at coordinate ``along``."""
