@@ -166,8 +166,22 @@ def grid_gradient(field: torch.Tensor, cell_size: float) -> torch.Tensor:
     Args:
         field: (B, H, W) with H, W >= 3.
     """
-    d_dy, d_dx = torch.gradient(field, spacing=cell_size, dim=(-2, -1), edge_order=2)
-    return torch.stack([d_dx, d_dy], dim=1)  # (B, 2, H, W)
+    if min(field.shape[-2:]) < 3:
+        raise ValueError(f"field must be at least 3 x 3, got {tuple(field.shape)}")
+    return torch.stack([_diff(field, -1, cell_size), _diff(field, -2, cell_size)], dim=1)
+
+
+def _diff(f: torch.Tensor, dim: int, h: float) -> torch.Tensor:
+    """Derivative along ``dim``: central inside, one-sided 2nd order at the ends.
+
+    Written with differences of neighbours only, so a constant field gives exactly 0.
+    """
+    d = f.diff(dim=dim)  # forward differences, one shorter along dim
+    n = d.shape[dim]
+    first = 1.5 * d.narrow(dim, 0, 1) - 0.5 * d.narrow(dim, 1, 1)
+    last = 1.5 * d.narrow(dim, n - 1, 1) - 0.5 * d.narrow(dim, n - 2, 1)
+    inner = 0.5 * (d.narrow(dim, 0, n - 1) + d.narrow(dim, 1, n - 1))
+    return torch.cat([first, inner, last], dim=dim) / h
 
 
 def christoffel_conformal(psi: torch.Tensor, cell_size: float) -> torch.Tensor:
@@ -222,9 +236,11 @@ def christoffel_from_metric(g: torch.Tensor, cell_size: float) -> torch.Tensor:
 def sample_bilinear(field: torch.Tensor, xy: torch.Tensor, cell_size: float) -> torch.Tensor:
     """Bilinear values of ``field`` (B, C, H, W) at metric points ``xy`` (B, N, 2) -> (B, N, C).
 
-    Points outside the grid take the border value.
+    Points outside the grid take the border value; a field with B = 1 is shared by all points.
     """
     H, W = field.shape[-2:]
+    if field.shape[0] == 1 and xy.shape[0] > 1:
+        field = field.expand(xy.shape[0], *field.shape[1:])  # share one field across the batch
     gx = 2.0 * xy[..., 0] / (W * cell_size) - 1.0  # (B, N)
     gy = 2.0 * xy[..., 1] / (H * cell_size) - 1.0  # (B, N)
     grid = torch.stack([gx, gy], dim=-1)[:, :, None, :].to(field.dtype)  # (B, N, 1, 2)
@@ -236,15 +252,15 @@ def geodesic_acceleration(gamma: torch.Tensor, x: torch.Tensor, v: torch.Tensor,
     """x'' = -Gamma^k_ij(x) v^i v^j.
 
     Args:
-        gamma: (B, 2, 2, 2, H, W) Christoffel symbols.
+        gamma: (B, 2, 2, 2, H, W) Christoffel symbols (B = 1 is shared by all points).
         x: (B, 2) metric positions; v: (B, 2) velocities.
 
     Returns:
         (B, 2) acceleration.
     """
-    B = gamma.shape[0]
-    flat = gamma.reshape(B, 8, *gamma.shape[-2:])  # (B, 8, H, W)
-    g_at = sample_bilinear(flat, x[:, None, :], cell_size)[:, 0].reshape(B, 2, 2, 2)  # (B, 2, 2, 2)
+    flat = gamma.reshape(gamma.shape[0], 8, *gamma.shape[-2:])  # (B, 8, H, W)
+    g_at = sample_bilinear(flat, x[:, None, :], cell_size)[:, 0]  # (B, 8)
+    g_at = g_at.reshape(x.shape[0], 2, 2, 2)  # (B, 2, 2, 2)
     return -torch.einsum("bkij,bi,bj->bk", g_at, v, v)  # (B, 2)
 
 
