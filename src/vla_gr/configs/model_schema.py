@@ -22,7 +22,11 @@ VISION_POOLS = ("grid", "spatial_softmax")
 OBJECTIVES = ("flow_matching", "diffusion", "l1")
 DENOISERS = ("unet1d", "transformer")
 PREDICTION_TYPES = ("epsilon", "sample", "v_prediction")
-SAMPLERS = ("euler", "midpoint", "ddim", "ddpm")
+SAMPLERS = {
+    "flow_matching": ("euler", "midpoint"),
+    "diffusion": ("ddim", "ddpm"),
+    "l1": ("none", "euler", "midpoint", "ddim", "ddpm"),
+}
 PEFT_METHODS = ("lora", "oft", "adapter")
 FREEZABLE = ("vision", "text", "pose", "fusion", "head")
 
@@ -80,10 +84,12 @@ class ModelConfig:
     objective: str = "flow_matching"
     denoiser: str = "unet1d"
     hidden_dim: int = 128
+    head_layers: int = 2  # transformer denoiser / L1 head blocks
+    head_heads: int = 4
     num_diffusion_steps: int = 100
     prediction_type: str = "epsilon"
     num_inference_steps: int = 5
-    sampler: str = "euler"
+    sampler: str = "euler"  # flow_matching: euler | midpoint; diffusion: ddim | ddpm; l1: none
     # Memory / fine-tuning.
     gradient_checkpointing: bool = False
     freeze: list[str] = field(default_factory=list)  # submodules whose weights stay fixed
@@ -129,6 +135,10 @@ class ModelConfig:
         check_positive("model.num_diffusion_steps", self.num_diffusion_steps)
         check_choice("model.prediction_type", self.prediction_type, PREDICTION_TYPES)
         check_positive("model.num_inference_steps", self.num_inference_steps)
-        check_choice("model.sampler", self.sampler, SAMPLERS)
+        check_positive("model.head_layers", self.head_layers)
+        check_positive("model.head_heads", self.head_heads)
+        check_choice(
+            f"model.sampler (objective {self.objective})", self.sampler, SAMPLERS[self.objective]
+        )
         for name in self.freeze:
             check_choice("model.freeze[]", name, FREEZABLE)

@@ -1,0 +1,1 @@
+"""Helpers of ``vla_gr.train``: distribution, optimisation, EMA, checkpoints, logging, data."""

@@ -1,0 +1,112 @@
+"""Run observability on rank 0: metrics.jsonl, TensorBoard, optional wandb, a progress bar."""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from collections.abc import Mapping
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+
+class MetricsLogger:
+    """Append scalars to ``<run>/metrics.jsonl`` and mirror them to TensorBoard / wandb.
+
+    Disabled (every call a no-op) on ranks other than 0.
+    """
+
+    def __init__(
+        self,
+        run_dir: str | Path,
+        enabled: bool = True,
+        tensorboard: bool = True,
+        wandb_cfg=None,
+        config: Mapping | None = None,
+        run_name: str | None = None,
+    ) -> None:
+        self.enabled = enabled
+        self.run_dir = Path(run_dir)
+        self._tb = None
+        self._wandb = None
+        if not enabled:
+            return
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self._jsonl = open(self.run_dir / "metrics.jsonl", "a", buffering=1)  # noqa: SIM115
+        if tensorboard:
+            from torch.utils.tensorboard import SummaryWriter
+
+            self._tb = SummaryWriter(str(self.run_dir / "tensorboard"))
+        if wandb_cfg is not None and wandb_cfg.enabled:
+            try:
+                import wandb
+            except ImportError as err:
+                raise ImportError(
+                    "logging.wandb.enabled=true but wandb is not installed: "
+                    "pip install 'vla-gr[wandb]'"
+                ) from err
+            self._wandb = wandb.init(
+                project=wandb_cfg.project,
+                entity=wandb_cfg.entity,
+                mode=wandb_cfg.mode,
+                name=run_name,
+                dir=str(self.run_dir),
+                config=dict(config or {}),
+                resume="allow",
+            )
+
+    def log(self, step: int, metrics: Mapping[str, float]) -> None:
+        """Record ``metrics`` (name -> number) at optimiser step ``step``."""
+        if not self.enabled:
+            return
+        clean = {k: float(v) for k, v in metrics.items()}
+        row = {"step": int(step), "time": time.time(), **clean}
+        self._jsonl.write(json.dumps({k: _json_num(v) for k, v in row.items()}) + "\n")
+        if self._tb is not None:
+            for k, v in clean.items():
+                self._tb.add_scalar(k, v, step)
+        if self._wandb is not None:
+            self._wandb.log(clean, step=step)
+
+    def close(self) -> None:
+        if not self.enabled:
+            return
+        self._jsonl.close()
+        if self._tb is not None:
+            self._tb.close()
+        if self._wandb is not None:
+            self._wandb.finish()
+
+
+def _json_num(v):
+    return None if isinstance(v, float) and not math.isfinite(v) else v
+
+
+def read_metrics(path: str | Path) -> list[dict]:
+    """Rows of a ``metrics.jsonl`` file."""
+    return [json.loads(line) for line in Path(path).read_text().splitlines() if line.strip()]
+
+
+class Progress:
+    """A tqdm bar over optimiser steps with loss, lr, samples/s and tqdm's ETA."""
+
+    def __init__(self, total: int, initial: int = 0, enabled: bool = True) -> None:
+        from tqdm import tqdm
+
+        self.bar = tqdm(
+            total=total,
+            initial=initial,
+            desc="train",
+            unit="step",
+            disable=not enabled,
+            dynamic_ncols=True,
+        )
+
+    def update(self, loss: float, lr: float, samples_per_s: float) -> None:
+        self.bar.set_postfix(loss=f"{loss:.4f}", lr=f"{lr:.2e}", sps=f"{samples_per_s:.1f}")
+        self.bar.update(1)
+
+    def close(self) -> None:
+        self.bar.close()
