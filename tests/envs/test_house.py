@@ -291,3 +291,16 @@ def test_render_is_not_blank_and_segmentation_names_map_to_instances():
             assert name.startswith(body + "_")
             ids[seg[..., 0] == geom_id] = int(body[3:])
     assert ids[32, 32] == 1 and (ids == 1).sum() > 200
+
+
+def test_clutter_scales_the_number_of_objects():
+    essential = {"sofa", "tv_monitor", "bed", "table", "toilet"}
+    for seed in range(4):
+        bare = generate_house(seed, clutter=0.0)
+        assert {o.category for o in bare.objects} <= essential
+        assert len(bare.objects) <= 2 * len(bare.rooms)
+    totals = [
+        sum(len(generate_house(s, num_rooms=3, clutter=c).objects) for s in range(5))
+        for c in (0.5, 1.0, 2.0)
+    ]
+    assert totals[0] < totals[1] < totals[2]
