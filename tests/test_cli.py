@@ -49,7 +49,7 @@ def test_demo_runs_on_debug_config(tmp_path, capsys):
     out_dir = tmp_path / "demo"
     assert main(["demo", "--config-name", "config_debug", f"demo.output_dir={out_dir}"]) == 0
     table = capsys.readouterr().out
-    assert "| name" in table and "expert (mean)" in table and "spl" in table
+    assert "| name" in table and "expert (mean of 1)" in table and "spl" in table
     metrics = json.loads((out_dir / "metrics.json").read_text())
     assert metrics["aggregate"]["episodes"] == 1
     ep = metrics["episodes"][0]

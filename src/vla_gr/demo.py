@@ -96,7 +96,7 @@ def run_demo(cfg) -> dict:
     infos = [e["metrics"] for e in episodes]
     summary = aggregate(infos)
     rows = {f"episode {e['episode_index']}": _row(e["metrics"]) for e in episodes}
-    rows["expert (mean)"] = summary
+    rows[f"expert (mean of {summary['episodes']})"] = _row(summary)
     table = format_table(rows)
     result = {
         "split": d.split,

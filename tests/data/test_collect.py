@@ -88,3 +88,13 @@ def test_refuse_append_overwrite(collected, tmp_path):
     assert _collect(path, "collect.mode=append", "env.image_size=48") == 2
     assert _collect(path, "collect.mode=overwrite", "collect.num_episodes=1") == 0
     assert EpisodeStore.open(path).num_episodes == 1
+
+
+def test_two_spawned_workers_write_the_same_store(collected, tmp_path):
+    path = tmp_path / "w2.zarr"
+    assert _collect(path, "collect.workers=2") == 0
+    a, b = EpisodeStore.open(collected), EpisodeStore.open(path)
+    np.testing.assert_array_equal(a.episode_ends, b.episode_ends)
+    for key in ("rgb", "depth", "pose", "action", "goal_mask"):
+        np.testing.assert_array_equal(a.data_array(key)[:], b.data_array(key)[:], err_msg=key)
+    assert a.instructions() == b.instructions()
