@@ -13,7 +13,7 @@ from vla_gr.envs.expert import (
     descend_path,
     lookahead_point,
     pursuit_command,
-    segment_is_free,
+    segment_clearance,
     wrap_angle,
 )
 from vla_gr.envs.geodesic import ROBOT_RADIUS
@@ -141,18 +141,34 @@ def test_descend_path_goes_through_the_door():
 
 def test_lookahead_respects_line_of_sight():
     grid = GridSpec(0.0, 0.0, 0.1, 30, 30)
-    free = np.ones(grid.shape, bool)
-    free[10:, 12] = False  # a wall at x = 1.25 from y = 1.0 up
-    # an L-shaped path: right along y = 0.5, then up along x = 2.0
-    path = np.array(
-        [[0.5 + 0.1 * i, 0.55] for i in range(16)] + [[2.05, 0.55 + 0.1 * i] for i in range(1, 20)]
-    )
+    occ = np.zeros(grid.shape, bool)
+    occ[10:, 12] = True  # a wall at x = 1.25 from y = 1.0 up
+    clearance = ndimage.distance_transform_edt(~occ) * 0.1 - 0.2  # (H, W)
+    # an L-shaped path: right along y = 0.55, then up along x = 2.05
+    path = [[0.55 + 0.1 * i, 0.55] for i in range(16)] + [
+        [2.05, 0.55 + 0.1 * i] for i in range(1, 20)
+    ]
+    path = np.array(path)  # (N, 2)
     far = lookahead_point(path, 2.5)
     assert np.allclose(far, path[25])
-    seen = lookahead_point(path, 2.5, free, grid)
-    assert segment_is_free(free, grid, path[0], seen)
+    seen = lookahead_point(path, 2.5, clearance, grid, min_clearance=0.05)
+    assert segment_clearance(clearance, grid, path[0], seen) >= 0.05
     assert np.linalg.norm(seen - path[0]) < np.linalg.norm(far - path[0])
-    assert not segment_is_free(free, grid, path[0], far)
+    assert segment_clearance(clearance, grid, path[0], far) < 0.05
+    # the segment to the next path point is always allowed, even from a tight spot
+    assert np.allclose(lookahead_point(path[:3], 1.0, np.full(grid.shape, -1.0), grid), path[2])
+    assert segment_clearance(clearance, grid, path[0], np.array([-1.0, 0.5])) == -math.inf
+
+
+def test_tight_start_can_still_look_ahead():
+    grid = GridSpec(0.0, 0.0, 0.1, 20, 40)
+    occ = np.zeros(grid.shape, bool)
+    occ[0, :] = True  # a wall along y = 0.05
+    clearance = ndimage.distance_transform_edt(~occ) * 0.1 - 0.2  # (H, W)
+    # robot 0.25 m from the wall (clearance 0.0 < min), path runs parallel, then away
+    path = np.array([[0.55 + 0.1 * i, 0.25] for i in range(10)])  # (N, 2)
+    target = lookahead_point(path, 0.6, clearance, grid, min_clearance=0.1)
+    assert np.allclose(target, path[6])  # parallel: no closer than now, so full lookahead
 
 
 def test_pursuit_command_signs_and_limits():

@@ -31,6 +31,7 @@ __all__ = [
     "clearance_cost",
     "descend_path",
     "lookahead_point",
+    "segment_clearance",
     "pursuit_command",
 ]
 
@@ -113,24 +114,32 @@ def descend_path(
     return np.stack(points)  # (N, 2)
 
 
-def segment_is_free(free: np.ndarray, grid: GridSpec, a: np.ndarray, b: np.ndarray) -> bool:
-    """True if every cell sampled along segment a (2,) -> b (2,) is True in ``free`` (H, W)."""
+def segment_clearance(clearance: np.ndarray, grid: GridSpec, a: np.ndarray, b: np.ndarray) -> float:
+    """Smallest ``clearance`` (H, W) sampled every half cell along segment a (2,) -> b (2,).
+
+    ``-inf`` if the segment leaves the grid.
+    """
     n = max(2, int(np.ceil(np.linalg.norm(b - a) / (0.5 * grid.cell_size))) + 1)
     t = np.linspace(0.0, 1.0, n)[:, None]  # (n, 1)
     rc = grid.world_to_cell(a[None] * (1 - t) + b[None] * t)  # (n, 2)
-    inside = grid.in_bounds(rc)
-    if not inside.all():
-        return False
-    return bool(free[rc[:, 0], rc[:, 1]].all())
+    if not grid.in_bounds(rc).all():
+        return -math.inf
+    return float(clearance[rc[:, 0], rc[:, 1]].min())
 
 
 def lookahead_point(
-    path: np.ndarray, lookahead: float, free: np.ndarray | None = None, grid: GridSpec | None = None
+    path: np.ndarray,
+    lookahead: float,
+    clearance: np.ndarray | None = None,
+    grid: GridSpec | None = None,
+    min_clearance: float = 0.0,
 ) -> np.ndarray:
     """Point (2,) on ``path`` (N, 2) at arc length ``lookahead`` from its start.
 
-    If ``free`` (H, W) and ``grid`` are given, the point is pulled back along the path until
-    the straight segment from the start to it stays inside ``free`` (line of sight).
+    With ``clearance`` (H, W) and ``grid``, the point is pulled back along the path until the
+    straight segment from the start to it keeps ``min_clearance`` (line of sight). Where the
+    start itself is closer to an obstacle than that, the segment only has to get no closer
+    than the start (minus a cell), so the robot can still leave a tight spot.
     """
     if len(path) == 1:
         return path[0].copy()
@@ -138,8 +147,11 @@ def lookahead_point(
     arc = np.concatenate([[0.0], np.cumsum(seg)])  # (N,)
     k = int(np.searchsorted(arc, lookahead))
     k = min(max(k, 1), len(path) - 1)
-    if free is not None and grid is not None:
-        while k > 1 and not segment_is_free(free, grid, path[0], path[k]):
+    if clearance is not None and grid is not None:
+        rc = grid.world_to_cell(path[0])  # (2,)
+        here = float(clearance[rc[0], rc[1]]) if grid.in_bounds(rc) else -math.inf
+        need = min(min_clearance, here - grid.cell_size)
+        while k > 1 and segment_clearance(clearance, grid, path[0], path[k]) < need:
             k -= 1
     return path[k].copy()
 
@@ -185,7 +197,10 @@ class ExpertConfig:
     lookahead: float = 0.6
     clearance_margin: float = 0.3
     clearance_weight: float = 6.0
-    min_free_clearance: float = 0.04  # line-of-sight cells must keep this much clearance
+    min_free_clearance: float = 0.04  # line-of-sight segments keep this much clearance
+    # Obstacles are rasterised by cell centres, so real geometry can reach ~half a cell (a
+    # diagonal) past the occupancy grid: plan for a robot this much larger than it is.
+    radius_slack_cells: float = 0.75
     excursion_steps: tuple[int, int] = (3, 8)  # DART excursion length range (inclusive)
 
     def __post_init__(self) -> None:
@@ -242,10 +257,11 @@ class GeodesicExpert:
         if not footprint.any():
             raise ValueError(f"goal {goal.instance_id} has no footprint in house {house.seed}")
         cfg = self.config
+        radius = ROBOT_RADIUS + cfg.radius_slack_cells * grid.cell_size
         cost = clearance_cost(
             house.occupancy,
             grid.cell_size,
-            ROBOT_RADIUS,
+            radius,
             cfg.clearance_margin,
             cfg.clearance_weight,
         )  # (H, W)
@@ -253,10 +269,9 @@ class GeodesicExpert:
         self._field = geodesic_distance(cost, footprint, walls, grid.cell_size)  # (H, W)
         # Fallback measure of the distance to the goal (unit cost) if the env's is unusable.
         self._unit_field = geodesic_distance(1.0, footprint, walls, grid.cell_size)  # (H, W)
-        clearance = (
-            ndimage.distance_transform_edt(~house.occupancy) * grid.cell_size - ROBOT_RADIUS
-        )  # (H, W)
-        self._free = (clearance >= cfg.min_free_clearance) | footprint  # (H, W)
+        self._clearance = (
+            ndimage.distance_transform_edt(~house.occupancy) * grid.cell_size - radius
+        )  # (H, W) metres of free space around a robot centred in each cell
         self._grid = grid
         self._plan_key = key
         logger.debug("planned for house %s goal %s", house.seed, goal.instance_id)
@@ -287,7 +302,9 @@ class GeodesicExpert:
             w = math.copysign(wmax * min(1.0, 2.0 * abs(err)), err)
             return self._to_action(0.0, w, vmax, wmax)
         path = descend_path(self._field, self._grid, pose[:2], cfg.lookahead + 0.2)  # (N, 2)
-        target = lookahead_point(path, cfg.lookahead, self._free, self._grid)  # (2,)
+        target = lookahead_point(
+            path, cfg.lookahead, self._clearance, self._grid, cfg.min_free_clearance
+        )  # (2,)
         v, w = pursuit_command(pose, target, vmax, wmax)
         return self._to_action(v, w, vmax, wmax)
 
