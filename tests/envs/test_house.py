@@ -304,3 +304,15 @@ def test_clutter_scales_the_number_of_objects():
         for c in (0.5, 1.0, 2.0)
     ]
     assert totals[0] < totals[1] < totals[2]
+
+
+@pytest.mark.slow
+def test_many_houses_are_valid():
+    for seed in range(150):
+        h = generate_house(
+            split_seed("train", seed), num_rooms=1 + seed % 6, clutter=0.5 + seed % 4
+        )
+        mujoco.MjModel.from_xml_string(house_to_mjcf(h))
+        assert unreachable_problems(h) == ([], [])
+        _, count = ndimage.label(traversable_cells(h), structure=np.ones((3, 3), int))
+        assert count == 1, seed

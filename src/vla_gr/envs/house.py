@@ -271,7 +271,8 @@ def _renumber(obj: ObjectInstance, instance_id: int) -> ObjectInstance:
 
 
 def _f(*values: float) -> str:
-    return " ".join(f"{v:.4f}".rstrip("0").rstrip(".") or "0" for v in values)
+    """Fixed-precision numbers for MJCF (identical strings for identical houses)."""
+    return " ".join(f"{v:.5f}".rstrip("0").rstrip(".") or "0" for v in values)
 
 
 def _wall_xml(box: WallBox, material: str) -> str:
@@ -311,7 +312,8 @@ def house_to_mjcf(house: House, robot_xml: str = "", robot_assets: str = "") -> 
         "  <visual>",
         '    <quality shadowsize="0" offsamples="0" numslices="8" numstacks="4"/>',
         '    <headlight ambient="0.45 0.45 0.45" diffuse="0.35 0.35 0.35" specular="0 0 0"/>',
-        '    <map znear="0.01" zfar="50"/>',
+        # map znear/zfar are relative to the extent: near 5 cm, far 40 m in absolute terms.
+        f'    <map znear="{_f(0.05 / extent)}" zfar="{_f(40.0 / extent)}"/>',
         "  </visual>",
         "  <default>",
         '    <default class="static"><geom contype="1" conaffinity="0" group="0"/></default>',
