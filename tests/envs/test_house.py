@@ -316,3 +316,21 @@ def test_many_houses_are_valid():
         assert unreachable_problems(h) == ([], [])
         _, count = ndimage.label(traversable_cells(h), structure=np.ones((3, 3), int))
         assert count == 1, seed
+
+
+def test_door_opening_in_grid_has_the_door_width():
+    from vla_gr.envs.scene import Door
+
+    rooms = [Room(0, "kitchen", 0.0, 0.0, 4.0, 3.0), Room(1, "office", 4.1, 0.0, 8.0, 3.0)]
+    door = Door(0, 1, 4.05, 1.5, 1.0, "y")
+    h = build_house(seed=0, rooms=rooms, doors=[door], objects=[])
+    xs, ys = cell_centres(h)
+    column = h.occupancy[:, h.grid.world_to_cell(np.array([4.05, 0.0]))[1]]  # (H,)
+    inside_wall = (ys[:, 0] > 0) & (ys[:, 0] < 3)
+    assert (~column[inside_wall]).sum() == round(1.0 / h.grid.cell_size)
+    free = traversable_cells(h)
+    _, count = ndimage.label(free, structure=np.ones((3, 3), int))
+    assert count == 1  # the two rooms are joined through the door
+    closed = build_house(seed=0, rooms=rooms, doors=[], objects=[])
+    _, count = ndimage.label(traversable_cells(closed), structure=np.ones((3, 3), int))
+    assert count == 2
