@@ -74,7 +74,7 @@ FEATURE_NAMES: tuple[str, ...] = (
 class GRFieldConfig:
     """Geometry of the sensor and the map, and the physics constants of the field."""
 
-    map_size: int = 128  # cells per side of the allocentric map, centred on the episode start
+    map_size: int = 192  # cells per side of the allocentric map, centred on the episode start
     cell_size: float = 0.15  # metres per cell
     hfov_deg: float = 79.0
     camera_height: float = 0.88

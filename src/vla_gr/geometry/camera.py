@@ -43,8 +43,11 @@ def intrinsics_from_hfov(width: int, height: int, hfov_deg: float) -> Intrinsics
 
 
 def valid_depth_mask(depth: torch.Tensor, min_depth: float, max_depth: float) -> torch.Tensor:
-    """Bool mask (same shape as ``depth``): finite and within ``[min_depth, max_depth]``."""
-    return torch.isfinite(depth) & (depth >= min_depth) & (depth <= max_depth)
+    """Bool mask (same shape as ``depth``): finite and in ``[min_depth, max_depth)``.
+
+    Depth at ``max_depth`` is a clipped no-return (Habitat convention) and is masked too.
+    """
+    return torch.isfinite(depth) & (depth >= min_depth) & (depth < max_depth)
 
 
 def depth_to_camera_points(depth: torch.Tensor, hfov_deg: float) -> torch.Tensor:
