@@ -176,3 +176,41 @@ def test_normalizer_round_trip_and_bounds():
     np.testing.assert_allclose(again.normalize(x), y)
     with pytest.raises(ValueError, match="last dim"):
         norm.normalize(np.zeros((2, 4)))
+
+
+class _KilledError(Exception):
+    pass
+
+
+def _killed(*args, **kwargs):
+    raise _KilledError
+
+
+@pytest.mark.parametrize(
+    "fail_at", ["data/goal_mask", "meta/metrics", "meta/episode_ends", "commit"]
+)
+def test_interrupted_append_never_corrupts(tmp_path, monkeypatch, fail_at):
+    """Kill the real append at each stage: committed episodes survive, the next append repairs."""
+    path = tmp_path / "s.zarr"
+    _filled(path, lengths=(5, 6))
+    store = EpisodeStore.open(path, mode="a")
+    if fail_at == "commit":
+        monkeypatch.setattr(store, "_commit", _killed)
+    else:
+        group, key = fail_at.split("/")
+        target = (store._data if group == "data" else store._meta)[key]
+        monkeypatch.setattr(target, "append", _killed)
+    with pytest.raises(_KilledError):
+        store.append(fake_episode(2, 9))
+    monkeypatch.undo()
+    reopened = EpisodeStore.open(path)
+    assert reopened.num_episodes == 2 and reopened.num_frames == 11
+    np.testing.assert_array_equal(reopened.episode(1)["pose"], fake_episode(1, 6).pose)
+    assert reopened.has_uncommitted()  # frames of episode 2 were written before the failure
+    store = EpisodeStore.open(path, mode="a")
+    assert store.append(fake_episode(2, 3))
+    final = EpisodeStore.open(path)
+    assert not final.has_uncommitted()
+    np.testing.assert_array_equal(final.episode_indices, [0, 1, 2])
+    np.testing.assert_array_equal(final.episode_ends, [5, 11, 14])
+    np.testing.assert_array_equal(final.episode(2)["action"], fake_episode(2, 3).action)

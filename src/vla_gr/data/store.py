@@ -259,6 +259,7 @@ class EpisodeStore:
                     f"{arr.dtype}, expected {shape} {dtype}"
                 )
         self._E, self._N, self._ends = E, N, ends
+        self._indices = set(np.asarray(self._meta["episode_index"][:E]).tolist())
         if self.has_uncommitted():
             log.warning(
                 "store %s has uncommitted residue after %d episodes / %d frames "
@@ -374,7 +375,7 @@ class EpisodeStore:
             raise ValueError(
                 f"record images are {record.rgb.shape[1:3]}, store holds {self.image_size}"
             )
-        if record.episode_index in set(self.episode_indices.tolist()):
+        if record.episode_index in self._indices:
             log.info("episode %d is already stored; skipped", record.episode_index)
             return False
         if self.has_uncommitted():
@@ -396,10 +397,15 @@ class EpisodeStore:
             "pose": merge_stats(stats.get("pose"), compute_stats(record.pose)),
             "depth": merge_stats(stats.get("depth"), compute_stats(record.depth.reshape(-1, 1))),
         }
-        self._group.attrs.update({"num_episodes": self._E + 1, "stats": new_stats})
+        self._commit(self._E + 1, new_stats)
         self._E, self._N = self._E + 1, self._N + T
         self._ends = np.append(self._ends, self._N)
+        self._indices.add(record.episode_index)
         return True
+
+    def _commit(self, num_episodes: int, stats: dict) -> None:
+        """The commit point: one atomic write of the root metadata."""
+        self._group.attrs.update({"num_episodes": num_episodes, "stats": stats})
 
     def __repr__(self) -> str:
         return (
