@@ -274,6 +274,8 @@ def place_furniture(
 
     def add(room: Room, item: Item, placer: RoomPlacer, mode: str) -> bool:
         hx, hy, height = sample_dimensions(item.category, rng)
+        if mode.startswith("beside:"):  # nightstand-sized
+            hx, hy, height = min(hx, 0.28), min(hy, 0.22), min(height, 0.65)
         pose = placer.place(mode, hx, hy, rng)
         if pose is None:
             return False
