@@ -98,3 +98,42 @@ def test_two_spawned_workers_write_the_same_store(collected, tmp_path):
     for key in ("rgb", "depth", "pose", "action", "goal_mask"):
         np.testing.assert_array_equal(a.data_array(key)[:], b.data_array(key)[:], err_msg=key)
     assert a.instructions() == b.instructions()
+
+
+@pytest.mark.slow
+def test_killed_collect_leaves_a_readable_store(tmp_path):
+    """SIGKILL a running collect; the store opens, and an append run completes it."""
+    import subprocess
+    import sys
+    import time
+
+    path = tmp_path / "killed.zarr"
+    cmd = [
+        sys.executable,
+        "-m",
+        "vla_gr.data.collect",
+        "--config-name",
+        "config_debug",
+        f"collect.output={path}",
+        "collect.split=val",
+        "collect.num_episodes=8",
+        *NOISE,
+    ]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 300
+        while time.monotonic() < deadline and proc.poll() is None:
+            if (path / "zarr.json").exists() and EpisodeStore.open(path).num_episodes >= 1:
+                break
+            time.sleep(0.05)
+    finally:
+        proc.kill()
+        proc.wait()
+    assert proc.returncode == -9  # killed mid-run, not finished
+    store = EpisodeStore.open(path)
+    n = store.num_episodes
+    assert 1 <= n <= 8
+    assert _collect(path, "collect.mode=append", "collect.num_episodes=3") == 0
+    store = EpisodeStore.open(path)
+    assert not store.has_uncommitted()
+    assert store.episode_indices.tolist() == list(range(max(3, n)))  # in order, no duplicates
