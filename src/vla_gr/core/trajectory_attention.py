@@ -1,0 +1,466 @@
+"""Trajectory attention: rotary positions, SDPA attention, pre-norm blocks, action queries.
+
+The building blocks of the trajectory transformer (Actra / X-VLA style) and of the
+transformer denoiser of the action heads:
+
+- :func:`rope_angles` / :func:`apply_rope` -- rotary position embeddings (RoFormer):
+  dimension pairs ``(2i, 2i+1)`` are rotated by ``position * theta_i`` with
+  ``theta_i = base ** (-2i / D)``, so ``q_m . k_n`` depends only on ``m - n``.
+- :class:`MultiHeadAttention` -- self or cross attention on
+  :func:`torch.nn.functional.scaled_dot_product_attention` (fused / flash kernels on
+  GPU) with projections named ``q_proj``, ``k_proj``, ``v_proj``, ``out_proj`` so that
+  PEFT (LoRA / OFT) can target them; key padding masks, causal masks, optional RoPE.
+- :class:`TransformerBlock` -- pre-norm self-attention, optional cross-attention, MLP.
+- :class:`TrajectoryEncoder` -- learnable action queries (DETR-style) that self-attend
+  (optionally causally, for autoregressive rollout) and cross-attend to context tokens.
+
+Masks follow PyTorch's ``nn.MultiheadAttention``: ``key_padding_mask`` is bool
+``(B, S)`` with ``True`` marking padded (ignored) tokens.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+from torch.utils.checkpoint import checkpoint
+
+__all__ = [
+    "rope_angles",
+    "apply_rope",
+    "apply_rope_cos_sin",
+    "build_attention_mask",
+    "MultiHeadAttention",
+    "TransformerBlock",
+    "TrajectoryEncoder",
+    "as_context_tokens",
+]
+
+
+# --------------------------------------------------------------------------- RoPE (pure)
+
+
+def rope_angles(
+    positions: torch.Tensor, dim: int, base: float = 10000.0
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Cosines and sines of the rotary angles ``position * theta_i``.
+
+    Args:
+        positions: ``(T,)`` or ``(B, T)`` positions (integer or float).
+        dim: even feature size ``D`` that will be rotated.
+        base: frequency base; ``theta_i = base ** (-2i / D)``.
+
+    Returns:
+        ``(cos, sin)``, each ``(T, D/2)`` or ``(B, T, D/2)`` in float32.
+    """
+    if dim % 2 != 0 or dim <= 0:
+        raise ValueError(f"dim={dim} must be a positive even number for RoPE")
+    if positions.dim() not in (1, 2):
+        raise ValueError(f"positions must be (T,) or (B, T); got shape {tuple(positions.shape)}")
+    idx = torch.arange(0, dim, 2, device=positions.device, dtype=torch.float32)  # (D/2,)
+    inv_freq = base ** (-idx / dim)  # (D/2,)
+    angles = positions.to(torch.float32).unsqueeze(-1) * inv_freq  # (..., T, D/2)
+    return angles.cos(), angles.sin()
+
+
+def apply_rope_cos_sin(x: torch.Tensor, cos: torch.Tensor, sin: torch.Tensor) -> torch.Tensor:
+    """Rotate pairs ``(x[..., 2i], x[..., 2i+1])`` by precomputed angles.
+
+    Args:
+        x: ``(..., T, D)`` features; ``(B, ..., T, D)`` when ``cos`` is batched.
+        cos: ``(T, D/2)`` or ``(B, T, D/2)`` from :func:`rope_angles`.
+        sin: same shape as ``cos``.
+
+    Returns:
+        Tensor of the shape and dtype of ``x``.
+    """
+    if cos.dim() == 3 and x.dim() > 3:
+        # (B, T, D/2) -> (B, 1, ..., 1, T, D/2) to broadcast over head dims.
+        shape = (cos.shape[0],) + (1,) * (x.dim() - 3) + cos.shape[1:]
+        cos, sin = cos.view(shape), sin.view(shape)
+    xf = x.float().unflatten(-1, (-1, 2))  # (..., T, D/2, 2)
+    x1, x2 = xf[..., 0], xf[..., 1]  # (..., T, D/2)
+    out = torch.stack((x1 * cos - x2 * sin, x1 * sin + x2 * cos), dim=-1)  # (..., T, D/2, 2)
+    return out.flatten(-2).to(x.dtype)  # (..., T, D)
+
+
+def apply_rope(x: torch.Tensor, positions: torch.Tensor, base: float = 10000.0) -> torch.Tensor:
+    """Rotary position embedding of ``x`` at ``positions`` (norm preserving).
+
+    Args:
+        x: ``(..., T, D)`` with ``D`` even (e.g. ``(B, heads, T, head_dim)``).
+        positions: ``(T,)`` shared positions or ``(B, T)`` per-sample positions
+            (then ``x`` must have the batch as its first dimension).
+        base: frequency base of ``theta_i = base ** (-2i / D)``.
+
+    Returns:
+        Tensor with the shape of ``x``.
+    """
+    if x.shape[-2] != positions.shape[-1]:
+        raise ValueError(
+            f"positions has {positions.shape[-1]} entries but x has T={x.shape[-2]} tokens"
+        )
+    cos, sin = rope_angles(positions.to(x.device), x.shape[-1], base)  # (..., T, D/2)
+    return apply_rope_cos_sin(x, cos, sin)
+
+
+# --------------------------------------------------------------------------- masks
+
+
+def build_attention_mask(
+    num_queries: int,
+    num_keys: int,
+    key_padding_mask: torch.Tensor | None = None,
+    causal: bool = False,
+    device: torch.device | None = None,
+) -> torch.Tensor | None:
+    """Boolean SDPA mask (``True`` = may attend) combining padding and causality.
+
+    Args:
+        num_queries: ``T`` query tokens.
+        num_keys: ``S`` key tokens.
+        key_padding_mask: optional bool ``(B, S)``, ``True`` = padded (ignored).
+        causal: query ``i`` sees keys ``j <= i`` only (requires ``T == S``).
+        device: device of the mask when no padding mask is given.
+
+    Returns:
+        ``None`` when nothing is masked, else bool ``(T, S)`` or ``(B, 1, T, S)``.
+    """
+    mask = None
+    if causal:
+        if num_queries != num_keys:
+            raise ValueError(f"causal attention needs T == S; got T={num_queries}, S={num_keys}")
+        dev = key_padding_mask.device if key_padding_mask is not None else device
+        mask = torch.ones(num_queries, num_keys, dtype=torch.bool, device=dev).tril()  # (T, S)
+    if key_padding_mask is not None:
+        if key_padding_mask.dim() != 2 or key_padding_mask.shape[1] != num_keys:
+            raise ValueError(
+                f"key_padding_mask must be (B, {num_keys}); got {tuple(key_padding_mask.shape)}"
+            )
+        keep = ~key_padding_mask.bool()[:, None, None, :]  # (B, 1, 1, S)
+        mask = keep if mask is None else keep & mask  # (B, 1, T, S)
+        if not bool(mask.any(-1).all()):
+            raise ValueError("key_padding_mask masks every key of some query (NaN attention)")
+    return mask
+
+
+# --------------------------------------------------------------------------- attention
+
+
+class MultiHeadAttention(nn.Module):
+    """Multi-head self/cross attention on ``scaled_dot_product_attention``.
+
+    Args:
+        dim: query/model width ``D`` (divisible by ``num_heads``).
+        num_heads: attention heads.
+        kv_dim: width of key/value inputs for cross attention (default ``dim``).
+        dropout: attention dropout probability (training only).
+        bias: bias in the projections.
+        use_rope: rotate queries and keys by their positions (self attention).
+        rope_base: RoPE frequency base.
+    """
+
+    def __init__(
+        self,
+        dim: int,
+        num_heads: int = 4,
+        kv_dim: int | None = None,
+        dropout: float = 0.0,
+        bias: bool = True,
+        use_rope: bool = False,
+        rope_base: float = 10000.0,
+    ) -> None:
+        super().__init__()
+        if dim <= 0 or num_heads <= 0 or dim % num_heads != 0:
+            raise ValueError(f"dim={dim} must be a positive multiple of num_heads={num_heads}")
+        head_dim = dim // num_heads
+        if use_rope and head_dim % 2 != 0:
+            raise ValueError(f"use_rope needs an even head_dim; got dim/num_heads={head_dim}")
+        if not 0.0 <= dropout < 1.0:
+            raise ValueError(f"dropout={dropout} must be in [0, 1)")
+        kv_dim = dim if kv_dim is None else kv_dim
+        self.num_heads, self.head_dim, self.dropout = num_heads, head_dim, dropout
+        self.use_rope, self.rope_base = use_rope, rope_base
+        self.q_proj = nn.Linear(dim, dim, bias=bias)
+        self.k_proj = nn.Linear(kv_dim, dim, bias=bias)
+        self.v_proj = nn.Linear(kv_dim, dim, bias=bias)
+        self.out_proj = nn.Linear(dim, dim, bias=bias)
+        self._rope_cache: dict[tuple, tuple[torch.Tensor, torch.Tensor]] = {}
+
+    def _rope(self, n: int, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+        """Cached ``(cos, sin)`` ``(n, head_dim/2)`` for positions ``0..n-1``."""
+        key = (n, str(device))
+        if key not in self._rope_cache:
+            pos = torch.arange(n, device=device)  # (n,)
+            self._rope_cache[key] = rope_angles(pos, self.head_dim, self.rope_base)
+        return self._rope_cache[key]
+
+    def forward(
+        self,
+        x: torch.Tensor,
+        context: torch.Tensor | None = None,
+        key_padding_mask: torch.Tensor | None = None,
+        causal: bool = False,
+        positions: torch.Tensor | None = None,
+        context_positions: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """Attend from ``x`` to itself (``context=None``) or to ``context``.
+
+        Args:
+            x: ``(B, T, D)`` queries.
+            context: optional ``(B, S, kv_dim)`` keys/values (cross attention).
+            key_padding_mask: optional bool ``(B, S)`` (``S = T`` for self attention),
+                ``True`` = padded key.
+            causal: causal mask (self attention).
+            positions: optional ``(T,)`` or ``(B, T)`` query positions for RoPE
+                (default ``0..T-1``).
+            context_positions: ``(S,)`` or ``(B, S)`` key positions for RoPE in cross
+                attention; RoPE is applied to cross attention only when given.
+
+        Returns:
+            ``(B, T, D)``.
+        """
+        B, T, _ = x.shape
+        kv = x if context is None else context  # (B, S, kv_dim)
+        S = kv.shape[1]
+        q = self.q_proj(x).view(B, T, self.num_heads, self.head_dim).transpose(1, 2)  # (B,h,T,d)
+        k = self.k_proj(kv).view(B, S, self.num_heads, self.head_dim).transpose(1, 2)  # (B,h,S,d)
+        v = self.v_proj(kv).view(B, S, self.num_heads, self.head_dim).transpose(1, 2)  # (B,h,S,d)
+        if self.use_rope:
+            if context is None:
+                if positions is None:
+                    cos, sin = self._rope(T, x.device)  # (T, d/2)
+                    q, k = apply_rope_cos_sin(q, cos, sin), apply_rope_cos_sin(k, cos, sin)
+                else:
+                    q = apply_rope(q, positions, self.rope_base)
+                    k = apply_rope(k, positions, self.rope_base)
+            elif context_positions is not None:
+                q_pos = positions if positions is not None else torch.arange(T, device=x.device)
+                q = apply_rope(q, q_pos, self.rope_base)
+                k = apply_rope(k, context_positions, self.rope_base)
+        if key_padding_mask is None:
+            attn_mask, is_causal = None, causal
+        else:
+            attn_mask, is_causal = build_attention_mask(T, S, key_padding_mask, causal), False
+        p = self.dropout if self.training else 0.0
+        out = F.scaled_dot_product_attention(
+            q, k, v, attn_mask=attn_mask, dropout_p=p, is_causal=is_causal
+        )  # (B, h, T, d)
+        out = out.transpose(1, 2).reshape(B, T, self.num_heads * self.head_dim)  # (B, T, D)
+        return self.out_proj(out)  # (B, T, D)
+
+
+class TransformerBlock(nn.Module):
+    """Pre-norm block: ``x + SelfAttn(LN x)``, ``x + CrossAttn(LN x, ctx)``, ``x + MLP(LN x)``.
+
+    Args:
+        dim: model width ``D``.
+        num_heads: attention heads.
+        context_dim: width of the cross-attention memory; ``None`` = no cross attention.
+        mlp_ratio: hidden width of the MLP as a multiple of ``dim``.
+        dropout: dropout on attention weights and residual branches.
+        use_rope: RoPE in the self-attention.
+        causal: causal self-attention by default (overridable per call).
+    """
+
+    def __init__(
+        self,
+        dim: int,
+        num_heads: int = 4,
+        context_dim: int | None = None,
+        mlp_ratio: float = 4.0,
+        dropout: float = 0.0,
+        use_rope: bool = True,
+        causal: bool = False,
+    ) -> None:
+        super().__init__()
+        self.causal = causal
+        self.norm1 = nn.LayerNorm(dim)
+        self.self_attn = MultiHeadAttention(dim, num_heads, dropout=dropout, use_rope=use_rope)
+        self.has_cross = context_dim is not None
+        if self.has_cross:
+            self.norm2 = nn.LayerNorm(dim)
+            self.cross_attn = MultiHeadAttention(
+                dim, num_heads, kv_dim=context_dim, dropout=dropout
+            )
+        hidden = int(dim * mlp_ratio)
+        self.norm3 = nn.LayerNorm(dim)
+        self.mlp = nn.Sequential(
+            nn.Linear(dim, hidden), nn.GELU(approximate="tanh"), nn.Linear(hidden, dim)
+        )
+        self.drop = nn.Dropout(dropout)
+
+    def forward(
+        self,
+        x: torch.Tensor,
+        context: torch.Tensor | None = None,
+        context_padding_mask: torch.Tensor | None = None,
+        causal: bool | None = None,
+        positions: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """Apply the block.
+
+        Args:
+            x: ``(B, T, D)`` tokens.
+            context: ``(B, S, context_dim)`` memory (required when built with cross attention).
+            context_padding_mask: optional bool ``(B, S)``, ``True`` = padded.
+            causal: override the block's default causality.
+            positions: optional ``(T,)`` or ``(B, T)`` RoPE positions.
+
+        Returns:
+            ``(B, T, D)``.
+        """
+        causal = self.causal if causal is None else causal
+        x = x + self.drop(self.self_attn(self.norm1(x), causal=causal, positions=positions))
+        if self.has_cross:
+            if context is None:
+                raise ValueError("this block cross-attends: context (B, S, C) is required")
+            h = self.cross_attn(self.norm2(x), context, key_padding_mask=context_padding_mask)
+            x = x + self.drop(h)  # (B, T, D)
+        return x + self.drop(self.mlp(self.norm3(x)))  # (B, T, D)
+
+
+def as_context_tokens(context: torch.Tensor, context_dim: int | None = None) -> torch.Tensor:
+    """Turn a ``(B, C)`` vector or ``(B, T, C)`` tokens into ``(B, T, C)`` tokens.
+
+    Args:
+        context: ``(B, C)`` or ``(B, T, C)``.
+        context_dim: expected ``C`` (checked when given).
+
+    Returns:
+        ``(B, T, C)`` (``T = 1`` for a vector).
+    """
+    if context.dim() == 2:
+        context = context.unsqueeze(1)  # (B, 1, C)
+    if context.dim() != 3:
+        raise ValueError(f"context must be (B, C) or (B, T, C); got {tuple(context.shape)}")
+    if context_dim is not None and context.shape[-1] != context_dim:
+        raise ValueError(f"context has C={context.shape[-1]} but context_dim={context_dim}")
+    return context
+
+
+class TrajectoryEncoder(nn.Module):
+    """Learnable action queries that self-attend and cross-attend to context tokens.
+
+    DETR-style decoding of an action chunk in one pass: ``num_action_queries``
+    learned query embeddings go through pre-norm blocks (self attention with RoPE
+    positions, optionally causal for autoregressive rollout; cross attention to the
+    context), then a linear head maps each query to an action.
+
+    Args:
+        action_dim: output action size ``A``.
+        hidden_dim: model width ``D``.
+        num_layers: number of blocks.
+        num_action_queries: maximum chunk length ``K_max``.
+        use_rope: rotary positions in the self-attention (else learned absolute
+            positions are added to the queries).
+        num_heads: attention heads.
+        causal: causal self-attention (query ``k`` only sees queries ``<= k``).
+        context_dim: width ``C`` of the context (default ``hidden_dim``).
+        mlp_ratio: MLP width multiple.
+        dropout: dropout probability.
+        gradient_checkpointing: recompute block activations in backward (saves memory).
+    """
+
+    def __init__(
+        self,
+        action_dim: int = 7,
+        hidden_dim: int = 256,
+        num_layers: int = 4,
+        num_action_queries: int = 16,
+        use_rope: bool = True,
+        num_heads: int = 4,
+        causal: bool = False,
+        context_dim: int | None = None,
+        mlp_ratio: float = 4.0,
+        dropout: float = 0.0,
+        gradient_checkpointing: bool = False,
+    ) -> None:
+        super().__init__()
+        for name, val in (
+            ("action_dim", action_dim),
+            ("hidden_dim", hidden_dim),
+            ("num_layers", num_layers),
+            ("num_action_queries", num_action_queries),
+        ):
+            if not isinstance(val, int) or val <= 0:
+                raise ValueError(f"{name}={val!r} must be a positive int")
+        context_dim = hidden_dim if context_dim is None else context_dim
+        self.action_dim, self.hidden_dim, self.context_dim = action_dim, hidden_dim, context_dim
+        self.num_action_queries, self.use_rope, self.causal = num_action_queries, use_rope, causal
+        self.gradient_checkpointing = gradient_checkpointing
+        self.queries = nn.Parameter(torch.randn(num_action_queries, hidden_dim) * 0.02)  # (K, D)
+        self.pos_embed = (
+            None
+            if use_rope
+            else nn.Parameter(torch.randn(num_action_queries, hidden_dim) * 0.02)  # (K, D)
+        )
+        self.context_proj = nn.Linear(context_dim, hidden_dim)
+        self.blocks = nn.ModuleList(
+            TransformerBlock(
+                hidden_dim, num_heads, hidden_dim, mlp_ratio, dropout, use_rope, causal
+            )
+            for _ in range(num_layers)
+        )
+        self.norm = nn.LayerNorm(hidden_dim)
+        self.action_head = nn.Linear(hidden_dim, action_dim)
+
+    def forward(
+        self,
+        context: torch.Tensor,
+        num_actions: int | None = None,
+        context_padding_mask: torch.Tensor | None = None,
+        causal: bool | None = None,
+    ) -> torch.Tensor:
+        """Decode ``num_actions`` actions from the context.
+
+        Args:
+            context: ``(B, C)`` vector or ``(B, T, C)`` tokens.
+            num_actions: chunk length ``K <= num_action_queries`` (default all queries).
+            context_padding_mask: optional bool ``(B, T)``, ``True`` = padded token.
+            causal: override the encoder's causality for this call.
+
+        Returns:
+            ``(B, K, action_dim)``.
+        """
+        K = self.num_action_queries if num_actions is None else num_actions
+        if not isinstance(K, int) or not 1 <= K <= self.num_action_queries:
+            raise ValueError(f"num_actions={K!r} must be an int in [1, {self.num_action_queries}]")
+        ctx = self.context_proj(as_context_tokens(context, self.context_dim))  # (B, T, D)
+        B = ctx.shape[0]
+        x = self.queries[:K].unsqueeze(0).expand(B, K, self.hidden_dim)  # (B, K, D)
+        if self.pos_embed is not None:
+            x = x + self.pos_embed[:K]  # (B, K, D)
+        x = self.forward_tokens(x, ctx, context_padding_mask, causal)  # (B, K, D)
+        return self.action_head(self.norm(x))  # (B, K, A)
+
+    def forward_tokens(
+        self,
+        x: torch.Tensor,
+        ctx: torch.Tensor,
+        context_padding_mask: torch.Tensor | None = None,
+        causal: bool | None = None,
+    ) -> torch.Tensor:
+        """Run the blocks on query tokens (with optional gradient checkpointing).
+
+        Args:
+            x: ``(B, K, D)`` query tokens.
+            ctx: ``(B, T, D)`` projected context tokens.
+            context_padding_mask: optional bool ``(B, T)``.
+            causal: causality override.
+
+        Returns:
+            ``(B, K, D)``.
+        """
+        use_ckpt = self.gradient_checkpointing and self.training and torch.is_grad_enabled()
+        for block in self.blocks:
+            if use_ckpt:
+                x = checkpoint(block, x, ctx, context_padding_mask, causal, use_reentrant=False)
+            else:
+                x = block(x, ctx, context_padding_mask, causal)  # (B, K, D)
+        return x
+
+
+def num_parameters(module: nn.Module) -> int:
+    """Total number of parameters of ``module``."""
+    return sum(p.numel() for p in module.parameters())
