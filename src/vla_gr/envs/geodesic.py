@@ -22,15 +22,19 @@ def goal_distance_field(
     """Geodesic distance (H, W) in metres from the goal object's footprint, for robot centres.
 
     The front starts on the object's footprint and moves through cells where the robot's
-    centre fits; cells the robot cannot reach are ``inf``. The value at the robot's
-    centre is the distance its centre must still travel to touch the footprint's boundary
-    (the quantity Habitat's ObjectNav measures to the goal's view points, here to the footprint).
+    centre fits given every other obstacle; cells the robot cannot reach are ``inf``. The
+    value at the robot's centre is the distance its centre must still travel to touch the
+    footprint's boundary (Habitat's ObjectNav measures to the goal's view points; here to
+    the footprint).
     """
     footprint = house.object_ids == instance_id  # (H, W)
     if not footprint.any():
         raise ValueError(f"object {instance_id} has no footprint cells in house {house.seed}")
-    blocked = ~traversable_cells(house, robot_radius) & ~footprint  # (H, W)
-    return geodesic_distance(1.0, footprint, blocked, house.grid.cell_size)
+    # Inflate every obstacle except the goal itself: the ring within the robot radius of the
+    # goal is where the front leaves the footprint, so it must stay open.
+    others = house.occupancy & ~footprint  # (H, W)
+    blocked = inflate_obstacles(others, robot_radius, house.grid.cell_size)  # (H, W)
+    return geodesic_distance(1.0, footprint, blocked & ~footprint, house.grid.cell_size)
 
 
 def sample_field(field: np.ndarray, grid: GridSpec, x: float, y: float) -> float:
