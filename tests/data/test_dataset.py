@@ -33,7 +33,9 @@ def test_window_indices_hand_computed():
 @pytest.mark.parametrize("in_memory", [True, False])
 def test_windows_match_store_exactly(store_path, in_memory):
     n_obs, horizon = 3, 4
-    ds = EpisodeWindowDataset(store_path, n_obs, horizon, split="all", in_memory=in_memory)
+    ds = EpisodeWindowDataset(
+        store_path, n_obs, horizon, split="all", in_memory=in_memory, cache_episodes=1
+    )
     assert len(ds) == sum(LENGTHS)
     recs = [fake_episode(i, n) for i, n in enumerate(LENGTHS)]
     i = 0

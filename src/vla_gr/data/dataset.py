@@ -9,6 +9,7 @@ fall outside the episode repeat its first (history) or last (chunk) frame, and
 from __future__ import annotations
 
 import logging
+from collections import OrderedDict
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -74,7 +75,8 @@ class EpisodeWindowDataset(Dataset):
       ``action`` (horizon, 3) float32, ``action_is_pad`` (horizon,) bool,
       ``instruction`` str, ``episode`` int (store row), ``step`` int (t),
     with T = ``n_obs_steps``. With ``normalize=True`` pose and action are mapped to
-    [-1, 1] by ``self.normalizers`` (min/max stored with the data).
+    [-1, 1] by ``self.normalizers`` (min/max stored with the data). ``in_memory=False``
+    reads whole episodes from the store on demand and keeps the last ``cache_episodes``.
     """
 
     def __init__(
@@ -87,6 +89,7 @@ class EpisodeWindowDataset(Dataset):
         seed: int = 0,
         episodes: Sequence[int] | None = None,
         in_memory: bool = True,
+        cache_episodes: int = 4,
         rgb_uint8: bool = False,
         normalize: bool = False,
     ) -> None:
@@ -123,6 +126,8 @@ class EpisodeWindowDataset(Dataset):
             else (np.zeros(0, dtype=np.int64))
         )  # (S,)
         self.in_memory = in_memory
+        self.cache_episodes = max(1, int(cache_episodes))
+        self._cache: OrderedDict[int, dict[str, np.ndarray]] = OrderedDict()
         if in_memory:
             self._frames = {k: self._load_selected(k) for k in FRAME_KEYS}
         self._instructions = store.instructions()
@@ -146,16 +151,24 @@ class EpisodeWindowDataset(Dataset):
             return np.zeros((0, *arr.shape[1:]), dtype=arr.dtype)
         return np.concatenate(parts, axis=0)
 
+    def _episode_frames(self, j: int) -> dict[str, np.ndarray]:
+        """All frames of selected episode ``j`` read from the store, through a small LRU."""
+        frames = self._cache.get(j)
+        if frames is None:
+            start, n = int(self._store_starts[j]), int(self._lengths[j])
+            frames = {k: self.store.data_array(k)[start : start + n] for k in FRAME_KEYS}
+            self._cache[j] = frames
+            while len(self._cache) > self.cache_episodes:
+                self._cache.popitem(last=False)
+        else:
+            self._cache.move_to_end(j)
+        return frames
+
     def _gather(self, key: str, j: int, idx: np.ndarray) -> np.ndarray:
         """Frames ``idx`` (K,) within selected episode ``j`` -> (K, ...)."""
-        lo, hi = int(idx.min()), int(idx.max()) + 1
         if self.in_memory:
-            base = int(self._local_starts[j])
-            block = self._frames[key][base + lo : base + hi]
-        else:
-            base = int(self._store_starts[j])
-            block = self.store.data_array(key)[base + lo : base + hi]
-        return block[idx - lo]
+            return self._frames[key][int(self._local_starts[j]) + idx]
+        return self._episode_frames(j)[key][idx]
 
     def __len__(self) -> int:
         return int(self._sample_episode.shape[0])
