@@ -36,9 +36,21 @@ def frontier_mask(explored: torch.Tensor, occupied: torch.Tensor) -> torch.Tenso
     Returns:
         (B, H, W) bool. Cells outside the grid do not count as unexplored.
     """
-    unexplored = (~explored).float()[:, None]  # (B, 1, H, W)
-    near_unknown = F.max_pool2d(unexplored, 3, stride=1, padding=1)[:, 0] > 0  # (B, H, W)
+    near_unknown = dilate_square(~explored, 1)  # (B, H, W)
     return explored & ~occupied & near_unknown
+
+
+def dilate_square(mask: torch.Tensor, k: int) -> torch.Tensor:
+    """Cells (B, H, W) bool within a (2k+1) x (2k+1) square of a True cell of ``mask`` (B, H, W).
+
+    Two separable 1-D max-pools (cheaper than one square pool); the border is not True.
+    """
+    if k < 0:
+        raise ValueError(f"k must be >= 0, got {k}")
+    x = mask.to(torch.float32)[:, None]  # (B, 1, H, W)
+    x = F.max_pool2d(x, (1, 2 * k + 1), stride=1, padding=(0, k))  # (B, 1, H, W)
+    x = F.max_pool2d(x, (2 * k + 1, 1), stride=1, padding=(k, 0))  # (B, 1, H, W)
+    return x[:, 0] > 0
 
 
 def normalise_mass(weights: torch.Tensor, total: float | torch.Tensor, cell_size: float):

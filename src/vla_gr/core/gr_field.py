@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,6 +30,7 @@ from vla_gr.core.field_map import centred_grid, empty_map, map_layers, update_ma
 from vla_gr.core.field_maths import (
     christoffel_conformal,
     conformal_log_factor,
+    dilate_square,
     frontier_mask,
     integrate_geodesic,
     normalise_mass,
@@ -158,6 +160,9 @@ class GRField(nn.Module):
         self.grid = centred_grid(config.map_size, config.cell_size)
         self.register_buffer("map_state", torch.zeros(0, 4, *self.grid.shape), persistent=False)
         self._last: dict | None = None
+        #: seconds per part of the last update: mapping, masses, poisson, metric,
+        #: fast_marching (inflation + travel time + gradient), path, features
+        self.last_timings: dict[str, float] = {}
 
     @property
     def num_channels(self) -> int:
@@ -219,6 +224,7 @@ class GRField(nn.Module):
         cfg = self.config
         depth, pose, goal = self._inputs(obs, goal_likelihood)
         B = depth.shape[0]
+        t0 = time.perf_counter()
         if self.map_state.shape[0] == 0:
             self.map_state = empty_map(B, self.grid, device=self.map_state.device)
         elif self.map_state.shape[0] != B:
@@ -237,11 +243,13 @@ class GRField(nn.Module):
             floor_height=cfg.floor_height, max_height=cfg.robot_height,
             robot_radius=cfg.robot_radius,
         )  # fmt: skip
+        self.last_timings = {"mapping": time.perf_counter() - t0}
         return self._compute(pose)
 
     def _compute(self, pose: torch.Tensor) -> GRFieldOutput:
         """Masses -> potential -> metric -> geodesics -> outputs, from the current map."""
         cfg, h = self.config, self.config.cell_size
+        tick = self._stopwatch()
         layers = map_layers(self.map_state)
         occupied, explored = layers["occupied"], layers["explored"]  # (B, H, W) bool
         robot_xy = pose[:, :2] - torch.tensor(
@@ -258,20 +266,25 @@ class GRField(nn.Module):
         f_total = torch.where(goal_seen, cfg.frontier_mass_goal_seen, cfg.frontier_mass)
         rho_front = normalise_mass(frontier.float(), f_total[:, None, None], h)  # (B, H, W)
         rho = rho_goal + rho_front - cfg.obstacle_density * occupied.float()  # (B, H, W)
+        tick("masses")
         phi = solve_poisson(rho, h, cfg.G)  # (B, H, W)
+        tick("poisson")
         proximity = obstacle_proximity(occupied, h, cfg.obstacle_length)  # (B, H, W)
         psi = conformal_log_factor(phi, proximity, cfg.beta, cfg.kappa)  # (B, H, W)
         cost = torch.exp(psi) * (1.0 + (cfg.unknown_cost - 1.0) * (~explored).float())
 
         # goals sit on obstacles: the robot's centre reaches the free cells within its radius
         k = math.ceil((cfg.robot_radius + h) / h)
-        halo = F.max_pool2d(goal_cells.float()[:, None], 2 * k + 1, 1, k)[:, 0] > 0  # (B, H, W)
+        halo = dilate_square(goal_cells, k)  # (B, H, W)
         standoff = halo & ~occupied  # (B, H, W)
         has_standoff = standoff.flatten(1).any(dim=1)[:, None, None]  # (B, 1, 1)
         goal_src = torch.where(has_standoff, standoff, goal_cells)  # (B, H, W)
         sources = torch.where(goal_seen[:, None, None], goal_src, frontier)  # (B, H, W)
+        tick("metric")
         travel, grads = self._travel(cost, occupied, sources, robot_xy)  # (B, H, W), (B, 2, H, W)
+        tick("fast_marching")
         waypoints, has_path, distance = self._waypoints(travel, robot_xy, pose)
+        tick("path")
         phi_hat = conformal_log_factor(phi, torch.zeros_like(phi), 1.0, 0.0)  # (B, H, W)
         t_feat = torch.where(
             torch.isfinite(travel), (travel / cfg.travel_clip).clamp(max=1.0), 1.0
@@ -281,12 +294,24 @@ class GRField(nn.Module):
              layers["goal"], frontier.float()], dim=1,
         )  # (B, C, H, W)  # fmt: skip
         features = self._egocentric(allo, pose)  # (B, C, h, w)
+        tick("features")
         self._last = {
             "phi_hat": phi_hat, "psi": psi, "travel": travel, "occupied": occupied,
             "explored": explored, "frontier": frontier, "goal": goal_cells,
             "robot_xy": robot_xy, "yaw": pose[:, 2], "has_path": has_path,
         }  # fmt: skip
         return GRFieldOutput(features, waypoints, has_path, goal_seen & has_path, distance)
+
+    def _stopwatch(self):
+        """A callable ``tick(name)`` that stores the seconds since the previous tick as ``name``."""
+        last = [time.perf_counter()]
+
+        def tick(name: str) -> None:
+            now = time.perf_counter()
+            self.last_timings[name] = now - last[0]
+            last[0] = now
+
+        return tick
 
     def _near(self, xy: torch.Tensor, radius: float) -> torch.Tensor:
         """(B, H, W) bool: cell centres within ``radius`` of metric points ``xy`` (B, 2)."""
