@@ -98,7 +98,13 @@ def unflatten_optimizer_state(tensors: Mapping[str, torch.Tensor], meta: Mapping
         state.setdefault(int(idx), {})[key] = value
     for idx, entries in meta.get("scalars", {}).items():
         state.setdefault(int(idx), {}).update(entries)
-    return {"state": state, "param_groups": [dict(g) for g in meta["param_groups"]]}
+    groups = []
+    for g in meta["param_groups"]:
+        g = dict(g)
+        if isinstance(g.get("betas"), list):  # JSON turned the tuple into a list
+            g["betas"] = tuple(g["betas"])
+        groups.append(g)
+    return {"state": state, "param_groups": groups}
 
 
 def capture_rng() -> tuple[dict, dict[str, torch.Tensor]]:
