@@ -31,6 +31,13 @@ ROOT = Path(__file__).resolve().parent
 DEFAULT_OUT = ROOT / "results" / "bench_expert"
 
 
+def _relative(path: Path) -> str:
+    try:
+        return str(path.resolve().relative_to(ROOT.parent))
+    except ValueError:
+        return str(path)
+
+
 def _jsonable(value):
     if isinstance(value, np.generic):
         return value.item()
@@ -128,7 +135,7 @@ def main(argv: list[str] | None = None) -> dict:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     meta = {
         "command": "python benchmarks/bench_expert.py " + " ".join(argv or sys.argv[1:]),
-        "args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
+        "args": {k: _relative(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
         "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs",
         "wall_s": wall,
     }

@@ -23,18 +23,22 @@ from vla_gr.geometry import GridSpec, geodesic_distance
 # ----------------------------------------------------------------------------- helpers
 
 
-def two_room_house(cell: float = 0.05) -> House:
-    """Two 4 x 4 m rooms split by a wall at x = 4.2 with a 0.9 m door; a chair at (6.5, 3.2)."""
+def two_room_house(cell: float = 0.05, doors=((1.5, 2.4),), goal_xy=(6.5, 3.2)) -> House:
+    """Two 4 x 4 m rooms split by a wall at x = 4.2 with doors (y ranges); a chair as goal."""
     grid = GridSpec(0.0, 0.0, cell, int(4.4 / cell), int(8.4 / cell))
     xs, ys = grid.cell_centres()  # (H, W) each
     occ = (xs < 0.2) | (xs > 8.2) | (ys < 0.2) | (ys > 4.2)
-    occ |= (np.abs(xs - 4.2) < 0.1) & ~((ys > 1.5) & (ys < 2.4))
-    goal = ObjectInstance(1, "chair", "red", 1, 6.5, 3.2, 0.0, (0.25, 0.25), 0.8)
+    opening = np.zeros(grid.shape, bool)
+    for y0, y1 in doors:
+        opening |= (ys > y0) & (ys < y1)
+    occ |= (np.abs(xs - 4.2) < 0.1) & ~opening
+    goal = ObjectInstance(1, "chair", "red", 1, *goal_xy, 0.0, (0.25, 0.25), 0.8)
     ids = np.zeros(grid.shape, np.int32)
     ids[(np.abs(xs - goal.x) <= 0.25) & (np.abs(ys - goal.y) <= 0.25)] = 1
     occ |= ids > 0
     rooms = [Room(0, "kitchen", 0.2, 0.2, 4.1, 4.2), Room(1, "bedroom", 4.3, 0.2, 8.2, 4.2)]
-    return House(0, rooms, [Door(0, 1, 4.2, 1.95, 0.9, "y")], [goal], grid, occ, ids)
+    door_list = [Door(0, 1, 4.2, (y0 + y1) / 2, y1 - y0, "y") for y0, y1 in doors]
+    return House(0, rooms, door_list, [goal], grid, occ, ids)
 
 
 class KinematicWorld:
@@ -46,14 +50,16 @@ class KinematicWorld:
     max_angular_speed = 1.0
     success_distance = 1.0
 
-    def __init__(self, house: House, start) -> None:
+    def __init__(self, house: House, start, hidden: np.ndarray | None = None) -> None:
+        """``hidden`` (H, W) bool: obstacles that block motion but are missing from the map."""
         self.house, self.goal = house, house.objects[0]
         self.unwrapped = self
         footprint = house.object_ids == self.goal.instance_id
         self.goal_distance = geodesic_distance(
             1.0, footprint, house.occupancy & ~footprint, house.grid.cell_size
         )
-        self._clear = ndimage.distance_transform_edt(~house.occupancy) * house.grid.cell_size
+        solid = house.occupancy if hidden is None else house.occupancy | hidden  # (H, W)
+        self._clear = ndimage.distance_transform_edt(~solid) * house.grid.cell_size
         self.pose = np.array(start, float)
         self.collisions = 0
 
@@ -288,3 +294,32 @@ def test_noisy_expert_solves_val_episodes(val_env):
         differ = np.any(np.abs(labels[:-1, :2] - executed[:-1, :2]) > 1e-6, axis=1)
         assert differ.mean() > 0.5
         assert labels[-1][2] > 0 and executed[-1][2] > 0
+
+
+def test_blocked_door_replans_through_the_other_door():
+    house = two_room_house(doors=((0.8, 1.7), (3.0, 3.9)), goal_xy=(6.5, 1.0))
+    xs, ys = house.grid.cell_centres()  # (H, W) each
+    glass = (np.abs(xs - 4.2) < 0.1) & (ys > 0.8) & (ys < 1.7)  # the near door is shut
+    world = KinematicWorld(house, (1.0, 1.2, 0.0), hidden=glass)
+    expert = GeodesicExpert(world)
+    poses, _, executed = drive(expert, world, max_steps=800)
+    assert executed[-1][2] > 0 and not expert.gave_up
+    assert expert.distance_to_goal(poses[-1, :2]) <= expert.config.stop_distance + 1e-9
+    assert np.any((np.abs(poses[:, 0] - 4.2) < 0.3) & (poses[:, 1] > 3.0))  # used door 2
+    assert 1 <= world.collisions <= 10
+
+
+def test_unreachable_goal_gives_up_with_stop():
+    house = two_room_house()
+    xs, ys = house.grid.cell_centres()  # (H, W) each
+    glass = (np.abs(xs - 4.2) < 0.1) & (ys > 1.4) & (ys < 2.5)  # the only door is shut
+    world = KinematicWorld(house, (1.0, 0.8, 0.0), hidden=glass)
+    expert = GeodesicExpert(world)
+    poses, _, executed = drive(expert, world, max_steps=1000)
+    assert executed[-1][2] > 0 and expert.gave_up
+    assert len(executed) < 400 and world.collisions <= 40
+    assert expert.distance_to_goal(poses[-1, :2]) > 1.0
+    # the next episode plans again from the house's own map
+    world.pose = np.array([1.0, 0.8, 0.0])
+    expert.reset()
+    assert not expert.gave_up and expert._replans == 0

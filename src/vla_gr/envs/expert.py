@@ -202,6 +202,14 @@ class ExpertConfig:
     # diagonal) past the occupancy grid: plan for a robot this much larger than it is.
     radius_slack_cells: float = 0.75
     excursion_steps: tuple[int, int] = (3, 8)  # DART excursion length range (inclusive)
+    # Blocked-motion recovery: after this many steps that moved < 25% of the command, mark
+    # the spot ahead as an obstacle, back up and re-plan; give up (STOP) after max_replans
+    # re-plans or 3 * max_replans blocked events.
+    blocked_steps: int = 3
+    backup_steps: int = 3
+    blocked_obstacle_radius: float = 0.1
+    max_replans: int = 6
+    patience_steps: int = 80  # give up if the planned cost-to-go has not dropped for this long
 
     def __post_init__(self) -> None:
         for name in ("stop_distance", "lookahead", "clearance_margin", "face_tolerance"):
@@ -239,6 +247,7 @@ class GeodesicExpert:
         self.rng = np.random.default_rng(seed)
         self.last_label = np.zeros(3, np.float32)
         self._plan_key = None
+        self._field: np.ndarray | None = None
         self._excursion_left = 0
         self._excursion_action = np.zeros(3, np.float32)
 
@@ -249,32 +258,58 @@ class GeodesicExpert:
         house, goal = u.house, u.goal
         self._excursion_left = 0
         self.last_label = np.zeros(3, np.float32)
+        self._prev_pose: np.ndarray | None = None
+        self._prev_command = 0.0
+        self._blocked = 0
+        self._backup_left = 0
+        self._replans = 0
+        self._blocked_events = 0
+        self._best_cost = math.inf
+        self._since_progress = 0
+        self.gave_up = False
         key = (id(house), house.seed, goal.instance_id)
         if key == self._plan_key:
             return
-        grid: GridSpec = house.grid
-        footprint = house.object_ids == goal.instance_id  # (H, W)
-        if not footprint.any():
+        self._grid: GridSpec = house.grid
+        self._footprint = house.object_ids == goal.instance_id  # (H, W)
+        if not self._footprint.any():
             raise ValueError(f"goal {goal.instance_id} has no footprint in house {house.seed}")
-        cfg = self.config
-        radius = ROBOT_RADIUS + cfg.radius_slack_cells * grid.cell_size
-        cost = clearance_cost(
-            house.occupancy,
-            grid.cell_size,
-            radius,
-            cfg.clearance_margin,
-            cfg.clearance_weight,
-        )  # (H, W)
-        walls = house.occupancy & ~footprint  # (H, W)
-        self._field = geodesic_distance(cost, footprint, walls, grid.cell_size)  # (H, W)
+        walls = house.occupancy & ~self._footprint  # (H, W)
         # Fallback measure of the distance to the goal (unit cost) if the env's is unusable.
-        self._unit_field = geodesic_distance(1.0, footprint, walls, grid.cell_size)  # (H, W)
-        self._clearance = (
-            ndimage.distance_transform_edt(~house.occupancy) * grid.cell_size - radius
-        )  # (H, W) metres of free space around a robot centred in each cell
-        self._grid = grid
+        self._unit_field = geodesic_distance(1.0, self._footprint, walls, self._grid.cell_size)
+        self._plan(house.occupancy)
         self._plan_key = key
         logger.debug("planned for house %s goal %s", house.seed, goal.instance_id)
+
+    def _plan(self, occupancy: np.ndarray) -> None:
+        """Cost-aware distance field and clearance map (H, W) for ``occupancy`` (H, W)."""
+        cfg, grid = self.config, self._grid
+        radius = ROBOT_RADIUS + cfg.radius_slack_cells * grid.cell_size
+        cost = clearance_cost(
+            occupancy, grid.cell_size, radius, cfg.clearance_margin, cfg.clearance_weight
+        )  # (H, W)
+        walls = occupancy & ~self._footprint  # (H, W)
+        self._field = geodesic_distance(cost, self._footprint, walls, grid.cell_size)  # (H, W)
+        self._clearance = (
+            ndimage.distance_transform_edt(~occupancy) * grid.cell_size - radius
+        )  # (H, W) metres of free space around a robot centred in each cell
+        self._occupancy = occupancy
+
+    def _mark_blocked(self, pose: np.ndarray) -> None:
+        """Add an obstacle disk just ahead of ``pose`` (3,) and re-plan around it."""
+        cfg, grid = self.config, self._grid
+        reach = ROBOT_RADIUS + 0.5 * cfg.blocked_obstacle_radius
+        ahead = pose[:2] + reach * np.array([math.cos(pose[2]), math.sin(pose[2])])  # (2,)
+        xs, ys = grid.cell_centres()  # (H, W) each
+        disk = (xs - ahead[0]) ** 2 + (ys - ahead[1]) ** 2 <= cfg.blocked_obstacle_radius**2
+        new = disk & ~self._footprint & ~self._occupancy  # (H, W)
+        if not new.any():  # pushed against a known obstacle (e.g. after noise): just back up
+            return
+        self._plan(self._occupancy | new)
+        self._best_cost, self._since_progress = math.inf, 0  # costs changed with the map
+        self._plan_key = None  # the next episode re-plans from the house's own map
+        self._replans += 1
+        logger.debug("blocked at %s: re-plan %d", np.round(pose, 2), self._replans)
 
     def distance_to_goal(self, xy: np.ndarray) -> float:
         """Geodesic distance (m) from ``xy`` (2,) to the goal footprint, as the env measures it."""
@@ -288,7 +323,7 @@ class GeodesicExpert:
     # -- control -------------------------------------------------------------------------
     def expert_action(self) -> np.ndarray:
         """Noise-free action (3,) float32 for the robot's current ground-truth pose."""
-        if self._plan_key is None:
+        if self._field is None:
             self.reset()
         u = self.env.unwrapped
         pose = np.asarray(u.robot_pose_world(), dtype=np.float64)  # (3,)
@@ -301,12 +336,53 @@ class GeodesicExpert:
                 return np.array([0.0, 0.0, 1.0], np.float32)
             w = math.copysign(wmax * min(1.0, 2.0 * abs(err)), err)
             return self._to_action(0.0, w, vmax, wmax)
+        if self._is_blocked(pose, vmax / float(u.control_hz)):
+            self._blocked_events += 1
+            self._mark_blocked(pose)
+            self._backup_left = cfg.backup_steps
+        rc = self._grid.world_to_cell(pose[:2])  # (2,)
+        stuck = self._replans > cfg.max_replans or self._blocked_events > 3 * cfg.max_replans
+        stuck = stuck or self._no_progress(rc)
+        if self.gave_up or stuck or not self._reachable(rc):
+            if not self.gave_up:
+                logger.warning("expert gives up: the goal cannot be reached from %s", pose)
+            self.gave_up = True
+            return np.array([0.0, 0.0, 1.0], np.float32)
+        if self._backup_left > 0:
+            self._backup_left -= 1
+            return self._to_action(-0.5 * vmax, 0.0, vmax, wmax)
         path = descend_path(self._field, self._grid, pose[:2], cfg.lookahead + 0.2)  # (N, 2)
         target = lookahead_point(
             path, cfg.lookahead, self._clearance, self._grid, cfg.min_free_clearance
         )  # (2,)
         v, w = pursuit_command(pose, target, vmax, wmax)
         return self._to_action(v, w, vmax, wmax)
+
+    def _no_progress(self, rc: np.ndarray) -> bool:
+        """True once the planned cost-to-go at cell ``rc`` (2,) stalls for ``patience_steps``."""
+        cost = float(self._field[rc[0], rc[1]]) if self._grid.in_bounds(rc) else math.inf
+        if cost < self._best_cost - 0.05:
+            self._best_cost, self._since_progress = cost, 0
+        else:
+            self._since_progress += 1
+        return self._since_progress > self.config.patience_steps
+
+    def _reachable(self, rc: np.ndarray) -> bool:
+        r0, c0 = max(rc[0] - 1, 0), max(rc[1] - 1, 0)
+        return bool(np.isfinite(self._field[r0 : rc[0] + 2, c0 : rc[1] + 2]).any())
+
+    def _is_blocked(self, pose: np.ndarray, full_step: float) -> bool:
+        """Count steps whose forward command moved the robot < 25% of the commanded distance."""
+        prev, command = self._prev_pose, self._prev_command
+        if prev is None or command <= 0.1:
+            self._blocked = 0
+            return False
+        moved = float(np.hypot(*(pose[:2] - prev[:2])))
+        self._blocked = self._blocked + 1 if moved < 0.25 * command * full_step else 0
+        if self._blocked >= self.config.blocked_steps:
+            self._blocked = 0
+            return True
+        return False
 
     @staticmethod
     def _to_action(v: float, w: float, vmax: float, wmax: float) -> np.ndarray:
@@ -316,7 +392,14 @@ class GeodesicExpert:
 
     def act(self, obs=None) -> np.ndarray:
         """Action (3,) float32 to execute; the noise-free label is kept in ``last_label``."""
-        label = self.expert_action()  # (3,)
+        action = self._noisy(self.expert_action())  # (3,)
+        self._prev_pose = np.asarray(self.env.unwrapped.robot_pose_world(), dtype=np.float64)
+        # Blocked-motion checks only for commands the expert chose (not random excursions).
+        self._prev_command = float(action[0]) if self._excursion_left == 0 else 0.0
+        return action
+
+    def _noisy(self, label: np.ndarray) -> np.ndarray:
+        """The executed action (3,) for noise-free ``label`` (3,)."""
         self.last_label = label.copy()
         if label[2] > 0 or (self.noise_std == 0 and self.noise_prob == 0):
             self._excursion_left = 0
