@@ -237,3 +237,17 @@ def test_path_from_unreachable_start_is_empty():
     T = geodesic_distance(1.0, src, obs, 0.1)
     assert extract_path(T, np.array([1.55, 0.55]), 0.1).shape == (0, 2)
     assert extract_path(T, np.array([-5.0, 0.55]), 0.1).shape == (0, 2)
+
+
+def test_path_with_precomputed_gradient_is_identical():
+    from vla_gr.geometry import upwind_gradient
+
+    src = np.zeros((40, 50), bool)
+    src[5, 45] = True
+    obs = np.zeros((40, 50), bool)
+    obs[10:30, 20] = True
+    T = geodesic_distance(1.0, src, obs, 0.1)
+    start = np.array([0.55, 3.55])
+    a = extract_path(T, start, 0.1)
+    b = extract_path(T, start, 0.1, gradient=upwind_gradient(T, 0.1))
+    np.testing.assert_allclose(a, b)

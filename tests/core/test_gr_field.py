@@ -258,3 +258,17 @@ def test_rendered_walls_land_on_the_true_occupancy():
         assert near[wrc[:, 0], wrc[:, 1]].mean() > 0.97
     finally:
         env.close()
+
+
+def test_planning_window_matches_fast_marching_on_the_whole_map():
+    goal = torch.zeros(1, N, N)
+    goal[0, 14:24, 50:58] = 1.0
+    obs = obs_of((0.3, -0.2, 0.4))
+    windowed, whole = GRField(), GRField(planning_margin=100.0)
+    out_w, out_f = windowed.update(obs, goal), whole.update(obs, goal)
+    seen = windowed._last["explored"][0] & torch.isfinite(whole._last["travel"][0])
+    t_w, t_f = windowed._last["travel"][0][seen], whole._last["travel"][0][seen]
+    assert seen.sum() > 200 and float(t_f.max()) > 3.0
+    torch.testing.assert_close(t_w, t_f, rtol=1e-4, atol=1e-4)
+    torch.testing.assert_close(out_w.waypoints, out_f.waypoints, rtol=0, atol=1e-4)
+    assert torch.isinf(windowed._last["travel"][0][~seen]).any()

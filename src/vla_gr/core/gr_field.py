@@ -92,7 +92,7 @@ class GRFieldConfig:
     frontier_mass: float = 1.0
     frontier_mass_goal_seen: float = 0.1
     frontier_min_distance: float = 0.6  # frontier cells nearer the robot are ignored (m)
-    obstacle_density: float = 0.5  # mass per square metre of occupied cell (repulsive)
+    obstacle_density: float = 0.05  # mass per square metre of occupied cell (repulsive)
     beta: float = 1.0  # weight of the potential in psi
     kappa: float = 2.0  # weight of obstacle proximity in psi
     obstacle_length: float = 0.3  # decay length (m) of the obstacle term
@@ -103,6 +103,7 @@ class GRFieldConfig:
     waypoint_spacing: float = 0.5  # metres between consecutive waypoints
     path_step: float = 0.5  # descent step in cells
     travel_clip: float = 20.0
+    planning_margin: float = 3.0  # fast marching runs on the explored bounding box + this (m)
 
     def __post_init__(self) -> None:
         for key in ("map_size", "ego_size", "num_waypoints"):
@@ -128,7 +129,7 @@ class GRFieldConfig:
             raise ValueError(f"gr_field.path_step={self.path_step} must be in (0, 1]")
         for key in (
             "goal_mass", "frontier_mass", "frontier_mass_goal_seen", "obstacle_density",
-            "beta", "kappa", "robot_radius", "frontier_min_distance",
+            "beta", "kappa", "robot_radius", "frontier_min_distance", "planning_margin",
         ):  # fmt: skip
             if getattr(self, key) < 0:
                 raise ValueError(f"gr_field.{key}={getattr(self, key)} must be >= 0")
@@ -281,9 +282,9 @@ class GRField(nn.Module):
         goal_src = torch.where(has_standoff, standoff, goal_cells)  # (B, H, W)
         sources = torch.where(goal_seen[:, None, None], goal_src, frontier)  # (B, H, W)
         tick("metric")
-        travel, grads = self._travel(cost, occupied, sources, robot_xy)  # (B, H, W), (B, 2, H, W)
-        tick("fast_marching")
-        waypoints, has_path, distance = self._waypoints(travel, robot_xy, pose)
+        travel, grads = self._travel(cost, occupied, explored, sources, robot_xy)
+        tick("fast_marching")  # travel (B, H, W), grads (B, 2, H, W)
+        waypoints, has_path, distance = self._waypoints(travel, grads, robot_xy, pose)
         tick("path")
         phi_hat = conformal_log_factor(phi, torch.zeros_like(phi), 1.0, 0.0)  # (B, H, W)
         t_feat = torch.where(
@@ -322,8 +323,12 @@ class GRField(nn.Module):
         dy = cy[None, :, None] - xy[:, 1, None, None]  # (B, H, 1)
         return dx**2 + dy**2 <= radius**2  # (B, H, W)
 
-    def _travel(self, cost, occupied, sources, robot_xy):
-        """Geodesic distance T (B, H, W) and its unit upwind gradient (B, 2, H, W)."""
+    def _travel(self, cost, occupied, explored, sources, robot_xy):
+        """Geodesic distance T (B, H, W) and its unit upwind gradient (B, 2, H, W).
+
+        Fast marching runs on the bounding box of the explored cells grown by
+        ``planning_margin`` (sources and robot always lie inside it); T is inf outside.
+        """
         cfg, h = self.config, self.config.cell_size
         xs, ys = self.grid.cell_centres()  # (H, W) each, map frame
         xs, ys = xs - self.grid.origin_x, ys - self.grid.origin_y
@@ -331,24 +336,32 @@ class GRField(nn.Module):
         grads = np.zeros((cost.shape[0], 2, *cost.shape[1:]))
         cost_np, occ_np = cost.detach().cpu().numpy(), occupied.cpu().numpy()
         src_np, robot_np = sources.cpu().numpy(), robot_xy.detach().cpu().numpy()
+        seen_np = explored.cpu().numpy()
+        pad = math.ceil(cfg.planning_margin / h)
         for b in range(cost.shape[0]):
             if not src_np[b].any():
                 continue
-            blocked = inflate_obstacles(occ_np[b], cfg.robot_radius, h)  # (H, W)
+            rows, cols = np.nonzero(seen_np[b] | src_np[b])
+            win = (
+                slice(max(rows.min() - pad, 0), rows.max() + pad + 1),
+                slice(max(cols.min() - pad, 0), cols.max() + pad + 1),
+            )
+            occ, src = occ_np[b][win], src_np[b][win]  # (h', w') planning window
+            blocked = inflate_obstacles(occ, cfg.robot_radius, h)  # (h', w')
             # the robot stands where it is: never block its own footprint unless truly occupied
-            own = np.hypot(xs - robot_np[b, 0], ys - robot_np[b, 1]) <= cfg.robot_radius + h
-            blocked &= ~(own & ~occ_np[b])
-            blocked &= ~src_np[b]
-            T = geodesic_distance(cost_np[b], src_np[b], blocked, h)  # (H, W)
+            own = np.hypot(xs[win] - robot_np[b, 0], ys[win] - robot_np[b, 1])
+            blocked &= ~((own <= cfg.robot_radius + h) & ~occ)
+            blocked &= ~src
+            T = geodesic_distance(cost_np[b][win], src, blocked, h)  # (h', w')
             gx, gy = upwind_gradient(T, h)
             norm = np.maximum(np.hypot(gx, gy), 1e-12)
-            travel[b], grads[b, 0], grads[b, 1] = T, gx / norm, gy / norm
+            travel[b][win], grads[b, 0][win], grads[b, 1][win] = T, gx / norm, gy / norm
         return (
             torch.from_numpy(travel).float().to(cost.device),
             torch.from_numpy(grads).float().to(cost.device),
         )
 
-    def _waypoints(self, travel, robot_xy, pose):
+    def _waypoints(self, travel, grads, robot_xy, pose):
         """Resample the descent path at ``waypoint_spacing``: (B, K, 2) robot frame, (B,), (B,)."""
         cfg, h = self.config, self.config.cell_size
         K, ds = cfg.num_waypoints, cfg.waypoint_spacing
@@ -357,8 +370,12 @@ class GRField(nn.Module):
         has_path = torch.zeros(B, dtype=torch.bool)
         distance = torch.full((B,), math.inf)
         T_np, robot_np = travel.cpu().numpy(), robot_xy.detach().cpu().numpy()
+        g_np = grads.cpu().numpy()  # (B, 2, H, W)
         for b in range(B):
-            path = extract_path(T_np[b], robot_np[b], h, cfg.path_step, max_length=K * ds + h)
+            path = extract_path(
+                T_np[b], robot_np[b], h, cfg.path_step, max_length=K * ds + h,
+                gradient=(g_np[b, 0], g_np[b, 1]),
+            )  # fmt: skip
             if len(path) == 0:
                 continue
             seg = np.linalg.norm(np.diff(path, axis=0), axis=1)  # (N - 1,)

@@ -136,6 +136,7 @@ def extract_path(
     step: float = 0.5,
     max_length: float = np.inf,
     max_steps: int | None = None,
+    gradient: tuple[np.ndarray, np.ndarray] | None = None,
 ):
     """Descend a travel-time field from ``start`` to its source with sub-cell steps.
 
@@ -150,6 +151,8 @@ def extract_path(
         step: step length in cells (0 < step <= 1).
         max_length: stop after this many metres.
         max_steps: hard cap on steps (default 4 * (H + W) / step).
+        gradient: optional precomputed (dT/dx, dT/dy), each (H, W), e.g. from
+            :func:`upwind_gradient`; only its direction is used.
 
     Returns:
         waypoints (N, 2) metric (x, y), same kind as ``travel``, starting at ``start`` and
@@ -169,7 +172,7 @@ def extract_path(
     path: list[tuple[float, float]] = []
     r, c = int(np.floor(fr + 0.5)), int(np.floor(fc + 0.5))
     if 0 <= r < H and 0 <= c < W and finite[r, c]:
-        gx, gy = upwind_gradient(T, 1.0)
+        gx, gy = upwind_gradient(T, 1.0) if gradient is None else gradient
         path.append((fc, fr))
         cap = max_steps if max_steps is not None else int(4 * (H + W) / step)
         length = 0.0
