@@ -59,9 +59,9 @@ def stats(times: list[float]) -> dict:
     return {"median_ms": float(np.median(ms)), "p90_ms": float(np.percentile(ms, 90))}
 
 
-def bench_size(size: int, cell: float, image: int, repeats: int) -> dict:
+def bench_size(size: int, cell: float, image: int, repeats: int, margin: float) -> dict:
     """Time a sequence of updates at one map size; returns medians per part."""
-    cfg = GRFieldConfig(map_size=size, cell_size=cell)
+    cfg = GRFieldConfig(map_size=size, cell_size=cell, planning_margin=margin)
     field = GRField(cfg)
     poses = trajectory(repeats + 5)
     frames = [
@@ -75,6 +75,7 @@ def bench_size(size: int, cell: float, image: int, repeats: int) -> dict:
     goal[0, image // 4 : image // 3, : image // 8] = 1.0
     full: list[float] = []
     parts: dict[str, list[float]] = {}
+    windows: list[int] = []
     for k, obs in enumerate(frames):
         t0 = time.perf_counter()
         out = field.update(obs, goal)
@@ -82,12 +83,15 @@ def bench_size(size: int, cell: float, image: int, repeats: int) -> dict:
         if k < 5:  # warm-up (kernel caches, allocator)
             continue
         full.append(elapsed)
+        windows.append(int(np.prod(field.planning_windows[0])))
         for name, seconds in field.last_timings.items():
             parts.setdefault(name, []).append(seconds)
     return {
         "map_size": size,
         "cell_size": cell,
         "image_size": image,
+        "planning_margin": margin,
+        "fmm_window_cells_median": int(np.median(windows)),
         "updates": len(full),
         "has_path_last": bool(out.has_path[0]),
         "goal_seen_last": bool(out.goal_seen[0]),
@@ -105,20 +109,24 @@ def to_markdown(results: dict) -> str:
         f"Machine: {results['machine']}; torch threads: {results['threads']}; "
         f"load average before / after: {results['load_before']} / {results['load_after']}.",
         "",
-        "| map cells | cell (m) | full update median (p90) ms | "
+        "| map cells | cell (m) | FMM window (cells) | full update median (p90) ms | "
         + " | ".join(f"{p} ms" for p in PARTS)
         + " | goal <= 20 ms |",
-        "|---|---|---|" + "---|" * len(PARTS) + "---|",
+        "|---|---|---|---|" + "---|" * len(PARTS) + "---|",
     ]
     for r in results["sizes"]:
         full = r["full_update"]
         lines.append(
-            f"| {r['map_size']}² | {r['cell_size']} "
+            f"| {r['map_size']}² | {r['cell_size']} | {r['fmm_window_cells_median']} "
             f"| {full['median_ms']:.1f} ({full['p90_ms']:.1f})"
             + "".join(f" | {r['parts'][p]['median_ms']:.2f}" for p in PARTS)
             + f" | {'yes' if full['median_ms'] <= 20 else 'no'} |"
         )
     lines += [
+        "",
+        "FMM window: fast marching runs on the explored bounding box grown by",
+        "`planning_margin` (3 m by default; median cells shown). The rows with the whole map",
+        "as window (`planning_margin` 1000 m) give the cost once a whole map is explored.",
         "",
         "Parts are medians of `GRField.last_timings` over the same updates: mapping (depth ->",
         "points -> evidence map, free-space rays), masses (goal, frontier, obstacles), poisson",
@@ -144,8 +152,9 @@ def main(argv=None) -> dict:
     torch.set_num_threads(args.threads)
     load_before = [round(x, 2) for x in os.getloadavg()]
     sizes = []
-    for size in args.sizes:
-        r = bench_size(size, args.cell_size, args.image_size, args.repeats)
+    runs = [(size, margin) for size in args.sizes for margin in (3.0, 1000.0)]
+    for size, margin in runs:
+        r = bench_size(size, args.cell_size, args.image_size, args.repeats, margin)
         logger.info("%d^2: full %.2f ms, poisson %.2f ms, fast marching %.2f ms", size,
                     r["full_update"]["median_ms"], r["parts"]["poisson"]["median_ms"],
                     r["parts"]["fast_marching"]["median_ms"])  # fmt: skip

@@ -164,6 +164,8 @@ class GRField(nn.Module):
         #: seconds per part of the last update: mapping, masses, poisson, metric,
         #: fast_marching (inflation + travel time + gradient), path, features
         self.last_timings: dict[str, float] = {}
+        #: (rows, cols) of the fast-marching window of each batch element in the last update
+        self.planning_windows: list[tuple[int, int]] = []
 
     @property
     def num_channels(self) -> int:
@@ -338,6 +340,7 @@ class GRField(nn.Module):
         src_np, robot_np = sources.cpu().numpy(), robot_xy.detach().cpu().numpy()
         seen_np = explored.cpu().numpy()
         pad = math.ceil(cfg.planning_margin / h)
+        self.planning_windows = [(0, 0)] * cost.shape[0]
         for b in range(cost.shape[0]):
             if not src_np[b].any():
                 continue
@@ -347,6 +350,7 @@ class GRField(nn.Module):
                 slice(max(cols.min() - pad, 0), cols.max() + pad + 1),
             )
             occ, src = occ_np[b][win], src_np[b][win]  # (h', w') planning window
+            self.planning_windows[b] = occ.shape
             blocked = inflate_obstacles(occ, cfg.robot_radius, h)  # (h', w')
             # the robot stands where it is: never block its own footprint unless truly occupied
             own = np.hypot(xs[win] - robot_np[b, 0], ys[win] - robot_np[b, 1])
