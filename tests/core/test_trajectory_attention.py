@@ -170,3 +170,28 @@ def test_trajectory_encoder_bad_arguments():
         TrajectoryEncoder(7, 0, 2, 4)
     with pytest.raises(ValueError, match="num_heads"):
         TrajectoryEncoder(7, 30, 2, 4, num_heads=4)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_cached_rope_path_equals_explicit_positions(dtype):
+    torch.manual_seed(0)
+    attn = MultiHeadAttention(16, 2, use_rope=True).to(dtype).eval()
+    x = torch.randn(2, 6, 16, dtype=dtype)
+    cached = attn(x)  # float32: complex multiply; float64: cos/sin tables
+    explicit = attn(x, positions=torch.arange(6))  # reference apply_rope
+    assert torch.allclose(cached, explicit, atol=1e-5)
+    shifted = attn(x, positions=torch.arange(6) + 40)  # relative positions unchanged
+    assert torch.allclose(cached, shifted, atol=1e-4)
+    assert not torch.allclose(cached, MultiHeadAttention(16, 2).to(dtype).eval()(x))
+
+
+def test_precomputed_cross_kv_equals_context_path():
+    torch.manual_seed(0)
+    block = TransformerBlock(16, 4, context_dim=8).eval()
+    x, ctx = torch.randn(2, 5, 16), torch.randn(2, 3, 8)
+    pad = torch.tensor([[False, False, True], [False, False, False]])
+    kv = block.cross_attn.project_kv(ctx)
+    assert kv[0].shape == (2, 4, 3, 4)
+    assert torch.allclose(block(x, ctx, pad), block(x, None, pad, context_kv=kv), atol=1e-6)
+    with pytest.raises(ValueError, match="context"):
+        block(x)

@@ -167,7 +167,7 @@ class ConditionalResidualBlock1D(nn.Module):
         """
         film = film.unsqueeze(-1)  # (B, 2*out, 1)
         scale, bias = film[:, : self.out_ch], film[:, self.out_ch :]  # (B, out, 1) each
-        h = self.block1(x) * scale + bias  # (B, out, H)
+        h = torch.addcmul(bias, self.block1(x), scale)  # (B, out, H) = scale * h + bias
         return self.block2(h) + self.residual(x)  # (B, out, H)
 
 
@@ -405,8 +405,11 @@ class TransformerDenoiser(nn.Module):
 
     def step_conditions(
         self, time_embs: torch.Tensor, prepared: dict[str, torch.Tensor | None]
-    ) -> list[dict[str, torch.Tensor | None]]:
-        """Per-step conditioning (time token + memory) for ``N`` sampling steps.
+    ) -> list[dict]:
+        """Per-step conditioning for ``N`` sampling steps, batched over the steps.
+
+        The memory ``[time token, context]`` of step ``i`` is fixed, so each block's
+        cross-attention keys/values are projected once for all steps here.
 
         Args:
             time_embs: ``(N, D)`` from :meth:`embed_time`.
@@ -419,24 +422,39 @@ class TransformerDenoiser(nn.Module):
         N, (B, S, D) = time_embs.shape[0], mem.shape
         t = time_embs[:, None, None, :].expand(N, B, 1, D)  # (N, B, 1, D)
         memory = torch.cat((t, mem[None].expand(N, B, S, D)), dim=2)  # (N, B, 1 + S, D)
-        return [{"t": t[i], "memory": memory[i], "mask": prepared["mask"]} for i in range(N)]
+        flat = memory.reshape(N * B, S + 1, D)  # (N*B, 1 + S, D)
+        kvs = []
+        for block in self.blocks:
+            k, v = block.cross_attn.project_kv(flat)  # (N*B, h, 1 + S, d) each
+            kvs.append((k.unflatten(0, (N, B)), v.unflatten(0, (N, B))))  # (N, B, h, 1+S, d)
+        return [
+            {
+                "t": t[i],
+                "mask": prepared["mask"],
+                "kv": [(k[i], v[i]) for k, v in kvs],
+            }
+            for i in range(N)
+        ]
 
-    def denoise_step(self, x: torch.Tensor, cond: dict[str, torch.Tensor | None]) -> torch.Tensor:
+    def denoise_step(self, x: torch.Tensor, cond: dict) -> torch.Tensor:
         """Run the blocks with precomputed conditioning.
 
         Args:
             x: ``(B, H, A)`` noisy actions.
-            cond: one entry of :meth:`step_conditions` (``t``: ``(B, 1, D)``,
-                ``memory``: ``(B, 1 + S, D)``, ``mask``: ``(B, 1 + S)`` or ``None``).
+            cond: ``t``: ``(B, 1, D)`` time token; ``mask``: ``(B, 1 + S)`` or ``None``;
+                and either ``memory``: ``(B, 1 + S, D)`` or ``kv``: per-block
+                cross-attention ``(k, v)``, each ``(B, heads, 1 + S, head_dim)``.
 
         Returns:
             ``(B, H, A)``.
         """
-        memory, mask = cond["memory"], cond["mask"]
+        memory, mask, kvs = cond.get("memory"), cond["mask"], cond.get("kv")
         h = self.action_in(x) + cond["t"]  # (B, H, D)
         use_ckpt = self.gradient_checkpointing and self.training and torch.is_grad_enabled()
-        for block in self.blocks:
-            if use_ckpt:
+        for i, block in enumerate(self.blocks):
+            if kvs is not None:
+                h = block(h, None, mask, context_kv=kvs[i])  # (B, H, D)
+            elif use_ckpt:
                 h = checkpoint(block, h, memory, mask, use_reentrant=False)
             else:
                 h = block(h, memory, mask)  # (B, H, D)

@@ -29,6 +29,9 @@ __all__ = [
     "rope_angles",
     "apply_rope",
     "apply_rope_cos_sin",
+    "rope_tables",
+    "apply_rope_complex",
+    "apply_rope_tables",
     "build_attention_mask",
     "MultiHeadAttention",
     "TransformerBlock",
@@ -82,6 +85,51 @@ def apply_rope_cos_sin(x: torch.Tensor, cos: torch.Tensor, sin: torch.Tensor) ->
     x1, x2 = xf[..., 0], xf[..., 1]  # (..., T, D/2)
     out = torch.stack((x1 * cos - x2 * sin, x1 * sin + x2 * cos), dim=-1)  # (..., T, D/2, 2)
     return out.flatten(-2).to(x.dtype)  # (..., T, D)
+
+
+def rope_tables(cos: torch.Tensor, sin: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Interleaved full-width tables for :func:`apply_rope_tables`.
+
+    Args:
+        cos: ``(..., T, D/2)`` from :func:`rope_angles`.
+        sin: same shape.
+
+    Returns:
+        ``(cos2, sin2)``, each ``(..., T, D)``: ``[c0, c0, c1, c1, ...]`` and
+        ``[-s0, s0, -s1, s1, ...]``.
+    """
+    cos2 = cos.repeat_interleave(2, dim=-1)  # (..., T, D)
+    sin2 = torch.stack((-sin, sin), dim=-1).flatten(-2)  # (..., T, D)
+    return cos2, sin2
+
+
+def apply_rope_tables(x: torch.Tensor, cos2: torch.Tensor, sin2: torch.Tensor) -> torch.Tensor:
+    """RoPE as ``x * cos2 + swap_pairs(x) * sin2`` (4 ops; same result as :func:`apply_rope`).
+
+    Args:
+        x: ``(..., T, D)``.
+        cos2: ``(T, D)`` from :func:`rope_tables` (in the dtype of ``x``).
+        sin2: ``(T, D)``.
+
+    Returns:
+        ``(..., T, D)``.
+    """
+    swapped = x.unflatten(-1, (-1, 2)).flip(-1).flatten(-2)  # (..., T, D): (x1, x0, x3, x2..)
+    return x * cos2 + swapped * sin2
+
+
+def apply_rope_complex(x: torch.Tensor, cis: torch.Tensor) -> torch.Tensor:
+    """RoPE as one complex multiply (LLaMA style); float32 ``x`` only.
+
+    Args:
+        x: ``(..., T, D)`` float32 with unit stride in the last dim.
+        cis: ``(T, D/2)`` complex64 ``cos + i sin`` (``torch.polar(1, angle)``).
+
+    Returns:
+        ``(..., T, D)`` float32.
+    """
+    xc = torch.view_as_complex(x.unflatten(-1, (-1, 2)))  # (..., T, D/2) complex
+    return torch.view_as_real(xc * cis).flatten(-2)  # (..., T, D)
 
 
 def apply_rope(x: torch.Tensor, positions: torch.Tensor, base: float = 10000.0) -> torch.Tensor:
@@ -185,15 +233,38 @@ class MultiHeadAttention(nn.Module):
         self.k_proj = nn.Linear(kv_dim, dim, bias=bias)
         self.v_proj = nn.Linear(kv_dim, dim, bias=bias)
         self.out_proj = nn.Linear(dim, dim, bias=bias)
-        self._rope_cache: dict[tuple, tuple[torch.Tensor, torch.Tensor]] = {}
+        self._rope_cache: dict[tuple, tuple[torch.Tensor, ...]] = {}
 
-    def _rope(self, n: int, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
-        """Cached ``(cos, sin)`` ``(n, head_dim/2)`` for positions ``0..n-1``."""
-        key = (n, str(device))
+    def _rope(self, n: int, like: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """Cached RoPE tables for positions ``0..n-1`` in the dtype of ``like``.
+
+        Returns ``(cis,)`` ``(n, head_dim/2)`` complex64 for float32 (one complex multiply
+        per tensor, the fastest form on CPU), else ``(cos2, sin2)`` ``(n, head_dim)``.
+        """
+        key = (n, like.device, like.dtype)
         if key not in self._rope_cache:
-            pos = torch.arange(n, device=device)  # (n,)
-            self._rope_cache[key] = rope_angles(pos, self.head_dim, self.rope_base)
+            with torch.inference_mode(False), torch.no_grad():
+                pos = torch.arange(n, device=like.device)  # (n,)
+                cos, sin = rope_angles(pos, self.head_dim, self.rope_base)  # (n, d/2)
+                if like.dtype == torch.float32:
+                    self._rope_cache[key] = (torch.complex(cos, sin),)  # (n, d/2)
+                else:
+                    self._rope_cache[key] = tuple(t.to(like.dtype) for t in rope_tables(cos, sin))
         return self._rope_cache[key]
+
+    def project_kv(self, context: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Keys and values of a memory, to reuse across calls (cross attention).
+
+        Args:
+            context: ``(B, S, kv_dim)``.
+
+        Returns:
+            ``(k, v)``, each ``(B, heads, S, head_dim)``.
+        """
+        B, S, _ = context.shape
+        k = self.k_proj(context).view(B, S, self.num_heads, self.head_dim).transpose(1, 2)
+        v = self.v_proj(context).view(B, S, self.num_heads, self.head_dim).transpose(1, 2)
+        return k, v  # (B, h, S, d) each
 
     def forward(
         self,
@@ -203,6 +274,7 @@ class MultiHeadAttention(nn.Module):
         causal: bool = False,
         positions: torch.Tensor | None = None,
         context_positions: torch.Tensor | None = None,
+        kv: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> torch.Tensor:
         """Attend from ``x`` to itself (``context=None``) or to ``context``.
 
@@ -216,21 +288,28 @@ class MultiHeadAttention(nn.Module):
                 (default ``0..T-1``).
             context_positions: ``(S,)`` or ``(B, S)`` key positions for RoPE in cross
                 attention; RoPE is applied to cross attention only when given.
+            kv: precomputed ``(k, v)`` ``(B, heads, S, head_dim)`` from :meth:`project_kv`
+                (cross attention without recomputing the memory's projections).
 
         Returns:
             ``(B, T, D)``.
         """
         B, T, _ = x.shape
-        kv = x if context is None else context  # (B, S, kv_dim)
-        S = kv.shape[1]
         q = self.q_proj(x).view(B, T, self.num_heads, self.head_dim).transpose(1, 2)  # (B,h,T,d)
-        k = self.k_proj(kv).view(B, S, self.num_heads, self.head_dim).transpose(1, 2)  # (B,h,S,d)
-        v = self.v_proj(kv).view(B, S, self.num_heads, self.head_dim).transpose(1, 2)  # (B,h,S,d)
+        if kv is None:
+            k, v = self.project_kv(x if context is None else context)  # (B, h, S, d) each
+        else:
+            k, v = kv  # (B, h, S, d) each
+            context = k  # marks cross attention below
+        S = k.shape[2]
         if self.use_rope:
             if context is None:
                 if positions is None:
-                    cos, sin = self._rope(T, x.device)  # (T, d/2)
-                    q, k = apply_rope_cos_sin(q, cos, sin), apply_rope_cos_sin(k, cos, sin)
+                    tables = self._rope(T, q)
+                    if len(tables) == 1:  # float32: complex form, (T, d/2)
+                        q, k = apply_rope_complex(q, tables[0]), apply_rope_complex(k, tables[0])
+                    else:  # (T, d) each
+                        q, k = apply_rope_tables(q, *tables), apply_rope_tables(k, *tables)
                 else:
                     q = apply_rope(q, positions, self.rope_base)
                     k = apply_rope(k, positions, self.rope_base)
@@ -288,7 +367,7 @@ class TransformerBlock(nn.Module):
         self.mlp = nn.Sequential(
             nn.Linear(dim, hidden), nn.GELU(approximate="tanh"), nn.Linear(hidden, dim)
         )
-        self.drop = nn.Dropout(dropout)
+        self.drop = nn.Dropout(dropout) if dropout > 0 else nn.Identity()
 
     def forward(
         self,
@@ -297,6 +376,7 @@ class TransformerBlock(nn.Module):
         context_padding_mask: torch.Tensor | None = None,
         causal: bool | None = None,
         positions: torch.Tensor | None = None,
+        context_kv: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> torch.Tensor:
         """Apply the block.
 
@@ -306,6 +386,8 @@ class TransformerBlock(nn.Module):
             context_padding_mask: optional bool ``(B, S)``, ``True`` = padded.
             causal: override the block's default causality.
             positions: optional ``(T,)`` or ``(B, T)`` RoPE positions.
+            context_kv: optional precomputed cross-attention ``(k, v)`` of the context
+                (``self.cross_attn.project_kv(context)``), used instead of ``context``.
 
         Returns:
             ``(B, T, D)``.
@@ -313,9 +395,11 @@ class TransformerBlock(nn.Module):
         causal = self.causal if causal is None else causal
         x = x + self.drop(self.self_attn(self.norm1(x), causal=causal, positions=positions))
         if self.has_cross:
-            if context is None:
+            if context is None and context_kv is None:
                 raise ValueError("this block cross-attends: context (B, S, C) is required")
-            h = self.cross_attn(self.norm2(x), context, key_padding_mask=context_padding_mask)
+            h = self.cross_attn(
+                self.norm2(x), context, key_padding_mask=context_padding_mask, kv=context_kv
+            )
             x = x + self.drop(h)  # (B, T, D)
         return x + self.drop(self.mlp(self.norm3(x)))  # (B, T, D)
 
