@@ -198,3 +198,30 @@ def test_gradient_checkpointing_matches_plain_gradients():
         policy(acts, ctx, generator=torch.Generator().manual_seed(0))["loss"].backward()
         for r, p in zip(ref, policy.parameters()):
             assert torch.allclose(r, p.grad, atol=1e-5), den
+
+
+def test_get_action_returns_an_ordinary_tensor():
+    policy = DiffusionPolicy(2, 32, 4, objective="flow_matching", horizon=8).eval()
+    out = policy.get_action(torch.randn(1, 4), 2)
+    assert not out.is_inference()
+    w = torch.ones(2, requires_grad=True)
+    (out * w).sum().backward()  # usable in later autograd code
+    assert w.grad is not None
+
+
+def test_default_unet_widths_follow_hidden_dim():
+    policy = DiffusionPolicy(7, 128, objective="flow_matching")
+    assert policy.denoiser.down_dims == (32, 64, 128)
+    assert DiffusionPolicy(7, 36, n_groups=4).denoiser.down_dims == (8, 16, 36)
+    custom = DiffusionPolicy(7, 64, down_dims=(16, 32), horizon=10)
+    assert custom.denoiser.down_dims == (16, 32)
+    assert custom.get_action(torch.randn(2, 64), 2).shape == (2, 10, 7)
+
+
+@pytest.mark.slow
+def test_compiled_sampler_matches_eager():
+    policy = DiffusionPolicy(2, 32, 4, objective="flow_matching", horizon=8).eval()
+    ctx, noise = torch.randn(1, 4), torch.randn(1, 8, 2)
+    eager = policy.get_action(ctx, 3, noise=noise)
+    policy.compile_sampler()
+    assert torch.allclose(policy.get_action(ctx, 3, noise=noise), eager, atol=1e-5)

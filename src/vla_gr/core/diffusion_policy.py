@@ -280,6 +280,7 @@ class DiffusionPolicy(nn.Module):
 
         self.head: L1RegressionHead | None = None
         self.denoiser: nn.Module | None = None
+        self._compiled_step = None  # set by compile_sampler()
         if objective == "l1":
             self.head = L1RegressionHead(
                 action_dim,
@@ -338,6 +339,32 @@ class DiffusionPolicy(nn.Module):
             denoiser,
             sum(p.numel() for p in self.parameters()),
         )
+
+    def compile_sampler(self, **compile_kwargs) -> DiffusionPolicy:
+        """Compile the per-step denoiser trunk with ``torch.compile`` (opt-in).
+
+        Removes per-op overhead from the sampling loop (measured ~2.5x per step on CPU
+        for the U-Net; the first call compiles, which takes a minute or more on a small
+        CPU). Shapes are static (``dynamic=False`` unless given). Call again after
+        changing the module structure (e.g. adding or merging adapters).
+
+        Args:
+            **compile_kwargs: forwarded to :func:`torch.compile`.
+
+        Returns:
+            ``self``.
+        """
+        if self.denoiser is None:
+            raise ValueError("objective='l1' has no sampling loop to compile")
+        compile_kwargs.setdefault("dynamic", False)
+        self._compiled_step = torch.compile(self.denoiser.denoise_step, **compile_kwargs)
+        return self
+
+    def __getstate__(self) -> dict:
+        state = super().__getstate__() if hasattr(super(), "__getstate__") else self.__dict__
+        state = dict(state)
+        state["_compiled_step"] = None  # compiled functions are not copied / pickled
+        return state
 
     # ------------------------------------------------------------------ training
 
@@ -476,7 +503,7 @@ class DiffusionPolicy(nn.Module):
         conds = self.denoiser.step_conditions(
             self.denoiser.embed_time(eval_t * FLOW_TIME_SCALE), prepared
         )
-        step = self.denoiser.denoise_step
+        step = self._compiled_step or self.denoiser.denoise_step
         if sampler == "euler":
             for i in range(num_steps):
                 x = euler_step(x, step(x, conds[i]), dt)  # (B, H, A)
@@ -508,7 +535,7 @@ class DiffusionPolicy(nn.Module):
         conds = self.denoiser.step_conditions(
             self.denoiser.embed_time(timesteps.to(x.device, torch.float32)), prepared
         )
-        step = self.denoiser.denoise_step
+        step = self._compiled_step or self.denoiser.denoise_step
         for i, t in enumerate(timesteps.tolist()):
             out = step(x, conds[i])  # (B, H, A)
             if sampler == "ddim":
