@@ -87,25 +87,20 @@ def run_episodes(
     return results
 
 
-def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--episodes", type=int, default=100)
-    parser.add_argument("--split", default="val")
-    parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--image-size", type=int, default=64)
-    parser.add_argument("--noise-std", type=float, default=0.0)
-    parser.add_argument("--noise-prob", type=float, default=0.0)
-    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="path stem for .json/.md")
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
-    if args.episodes < 1 or args.workers < 1:
-        parser.error("--episodes and --workers must be >= 1")
+def _noise_setting(text: str) -> tuple[float, float]:
+    try:
+        std, prob = (float(x) for x in text.split(","))
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(f"--noise wants STD,PROB, got {text!r}") from err
+    return std, prob
 
-    from vla_gr.envs.metrics import aggregate, format_table
 
-    workers = min(args.workers, args.episodes)
+def run_setting(args, workers: int, noise: tuple[float, float]) -> dict:
+    """All episodes under one noise setting; returns summary, failures and per-episode infos."""
+    from vla_gr.envs.metrics import aggregate
+
     chunks = [list(range(args.episodes))[w::workers] for w in range(workers)]
-    job = (args.split, args.image_size, args.noise_std, args.noise_prob)
+    job = (args.split, args.image_size, *noise)
     t0 = time.perf_counter()
     if workers == 1:
         infos = run_episodes(chunks[0], *job)
@@ -115,47 +110,85 @@ def main(argv: list[str] | None = None) -> dict:
             infos = [info for f in futures for info in f.result()]
     wall = time.perf_counter() - t0
     infos.sort(key=lambda i: i["episode_index"])
-
     summary = aggregate(infos)
     total_steps = int(sum(i["steps"] for i in infos))
     summary["steps_per_episode"] = total_steps / len(infos)
     summary["episodes_per_min"] = 60.0 * len(infos) / wall
-    summary["env_steps_per_s"] = total_steps / wall
-    name = f"expert ({args.split}, noise {args.noise_std}/{args.noise_prob})"
-    table = format_table({name: summary})
     failures = [
         {k: i.get(k) for k in ("episode_index", "episode_id", "distance_to_goal", "steps")}
         for i in infos
         if not i["success"]
     ]
+    return {
+        "noise_std": noise[0],
+        "noise_prob": noise[1],
+        "wall_s": wall,
+        "summary": summary,
+        "failures": failures,
+        "episodes": infos,
+    }
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--episodes", type=int, default=100)
+    parser.add_argument("--split", default="val")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--image-size", type=int, default=64)
+    parser.add_argument(
+        "--noise",
+        type=_noise_setting,
+        action="append",
+        help="STD,PROB of DART noise; repeat for several rows (default: 0,0 only)",
+    )
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="path stem for .json/.md")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    if args.episodes < 1 or args.workers < 1:
+        parser.error("--episodes and --workers must be >= 1")
+    settings = args.noise or [(0.0, 0.0)]
+
+    from vla_gr.envs.metrics import format_table
+
+    workers = min(args.workers, args.episodes)
+    runs = [run_setting(args, workers, noise) for noise in settings]
+    rows = {
+        f"expert {args.split}, noise {r['noise_std']:g}/{r['noise_prob']:g}": r["summary"]
+        for r in runs
+    }
+    table = format_table(rows)
     print(table)
-    if failures:
-        print(f"failures: {failures}")
+    for r in runs:
+        if r["failures"]:
+            print(f"failures (noise {r['noise_std']:g}/{r['noise_prob']:g}): {r['failures']}")
 
     args.out.parent.mkdir(parents=True, exist_ok=True)
+    command = "python benchmarks/bench_expert.py " + " ".join(argv or sys.argv[1:])
     meta = {
-        "command": "python benchmarks/bench_expert.py " + " ".join(argv or sys.argv[1:]),
+        "command": command.strip(),
         "args": {k: _relative(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
         "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs",
-        "wall_s": wall,
+        "workers": workers,
     }
-    payload = {"meta": meta, "summary": summary, "failures": failures, "episodes": infos}
+    payload = {"meta": meta, "runs": runs}
     args.out.with_suffix(".json").write_text(json.dumps(_jsonable(payload), indent=1) + "\n")
     md = [
         "# Geodesic expert benchmark",
         "",
-        f"`{meta['command'].strip()}` on {meta['machine']}; {workers} worker process(es), "
-        f"wall {wall:.0f} s.",
+        f"`{meta['command']}` on {meta['machine']}, {workers} worker process(es), "
+        f"64x64 RGB-D rendered every step. Noise = DART std on (v, w) / excursion probability.",
         "",
         table,
         "",
-        "Targets (issue 2): SR >= 0.99, SPL >= 0.90, collision rate <= 0.01 on 100 val episodes.",
+        "Targets (issue 2, noise-free): SR >= 0.99, SPL >= 0.90, collision rate <= 0.01.",
     ]
-    if failures:
-        md += ["", f"Failures: {json.dumps(_jsonable(failures))}"]
+    for r in runs:
+        if r["failures"]:
+            md += ["", f"Failures (noise {r['noise_std']:g}/{r['noise_prob']:g}): "]
+            md += [f"- {json.dumps(_jsonable(f))}" for f in r["failures"]]
     args.out.with_suffix(".md").write_text("\n".join(md) + "\n")
     logger.info("wrote %s.{json,md}", args.out)
-    return summary
+    return {name: r["summary"] for name, r in zip(rows, runs)}
 
 
 if __name__ == "__main__":

@@ -317,7 +317,7 @@ def test_unreachable_goal_gives_up_with_stop():
     expert = GeodesicExpert(world)
     poses, _, executed = drive(expert, world, max_steps=1000)
     assert executed[-1][2] > 0 and expert.gave_up
-    assert len(executed) < 400 and world.collisions <= 40
+    assert len(executed) < 300 and world.collisions <= 60  # gives up, does not grind
     assert expert.distance_to_goal(poses[-1, :2]) > 1.0
     # the next episode plans again from the house's own map
     world.pose = np.array([1.0, 0.8, 0.0])

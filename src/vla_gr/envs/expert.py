@@ -204,7 +204,8 @@ class ExpertConfig:
     excursion_steps: tuple[int, int] = (3, 8)  # DART excursion length range (inclusive)
     # Blocked-motion recovery: after this many steps that moved < 25% of the command, mark
     # the spot ahead as an obstacle, back up and re-plan; give up (STOP) after max_replans
-    # re-plans or 3 * max_replans blocked events.
+    # re-plans, 3 * max_replans blocked events, patience_steps / 2 steps held back by contact,
+    # or patience_steps without progress.
     blocked_steps: int = 3
     backup_steps: int = 3
     blocked_obstacle_radius: float = 0.1
@@ -259,9 +260,13 @@ class GeodesicExpert:
         self._excursion_left = 0
         self.last_label = np.zeros(3, np.float32)
         self._prev_pose: np.ndarray | None = None
-        self._prev_command = 0.0
+        self._prev_command = (0.0, 0.0)  # executed (v, w) fractions; zeros for excursions
+        self._face_steps = 0
         self._blocked = 0
         self._backup_left = 0
+        self._backup_sign = -1.0
+        self._strained = False
+        self._strained_steps = 0
         self._replans = 0
         self._blocked_events = 0
         self._best_cost = math.inf
@@ -332,17 +337,23 @@ class GeodesicExpert:
         goal = u.goal
         if self.distance_to_goal(pose[:2]) <= cfg.stop_distance:
             err = wrap_angle(math.atan2(goal.y - pose[1], goal.x - pose[0]) - pose[2])
-            if abs(err) <= cfg.face_tolerance:
+            self._face_steps += 1
+            # Stop once facing the goal, or if turning is obstructed (already successful).
+            if abs(err) <= cfg.face_tolerance or self._face_steps > cfg.patience_steps // 2:
                 return np.array([0.0, 0.0, 1.0], np.float32)
             w = math.copysign(wmax * min(1.0, 2.0 * abs(err)), err)
             return self._to_action(0.0, w, vmax, wmax)
-        if self._is_blocked(pose, vmax / float(u.control_hz)):
+        blocked = self._is_blocked(pose, vmax / float(u.control_hz), wmax / float(u.control_hz))
+        if blocked:
             self._blocked_events += 1
-            self._mark_blocked(pose)
+            if blocked == "forward":
+                self._mark_blocked(pose)
             self._backup_left = cfg.backup_steps
+            self._backup_sign = self._escape_sign(pose)
         rc = self._grid.world_to_cell(pose[:2])  # (2,)
         stuck = self._replans > cfg.max_replans or self._blocked_events > 3 * cfg.max_replans
-        stuck = stuck or self._no_progress(rc)
+        self._strained_steps += int(self._strained)
+        stuck = stuck or self._no_progress(rc) or self._strained_steps > cfg.patience_steps // 2
         if self.gave_up or stuck or not self._reachable(rc):
             if not self.gave_up:
                 logger.warning("expert gives up: the goal cannot be reached from %s", pose)
@@ -350,20 +361,41 @@ class GeodesicExpert:
             return np.array([0.0, 0.0, 1.0], np.float32)
         if self._backup_left > 0:
             self._backup_left -= 1
-            return self._to_action(-0.5 * vmax, 0.0, vmax, wmax)
+            return self._to_action(0.5 * self._backup_sign * vmax, 0.0, vmax, wmax)
         path = descend_path(self._field, self._grid, pose[:2], cfg.lookahead + 0.2)  # (N, 2)
         target = lookahead_point(
             path, cfg.lookahead, self._clearance, self._grid, cfg.min_free_clearance
         )  # (2,)
+        touching = self._strained and self._clearance[rc[0], rc[1]] < 0.0
+        if touching:
+            # Held back by an obstacle (e.g. pushed there by noise): aim away from it as well
+            # as along the path, so the arc does not cut the corner it is touching.
+            away = self._clearance_gradient(rc)  # (2,)
+            along = (target - pose[:2]) / max(float(np.linalg.norm(target - pose[:2])), 1e-6)
+            target = pose[:2] + 0.3 * (along + away)  # (2,)
         v, w = pursuit_command(pose, target, vmax, wmax)
+        if v == 0.0 and touching:
+            # Turning in place while touching something: ease away from it as well, since a
+            # contact can stall the rotation.
+            v = 0.3 * vmax * self._escape_sign(pose)
         return self._to_action(v, w, vmax, wmax)
+
+    def _clearance_gradient(self, rc: np.ndarray) -> np.ndarray:
+        """Unit direction (2,) as (x, y) of increasing clearance at cell ``rc`` (2,)."""
+        r, c = int(rc[0]), int(rc[1])
+        h, w = self._clearance.shape
+        r0, r1, c0, c1 = max(r - 1, 0), min(r + 1, h - 1), max(c - 1, 0), min(c + 1, w - 1)
+        gx = self._clearance[r, c1] - self._clearance[r, c0]
+        gy = self._clearance[r1, c] - self._clearance[r0, c]
+        norm = math.hypot(gx, gy)
+        return np.array([gx, gy]) / norm if norm > 0 else np.zeros(2)
 
     def _no_progress(self, rc: np.ndarray) -> bool:
         """True once the planned cost-to-go at cell ``rc`` (2,) stalls for ``patience_steps``."""
         cost = float(self._field[rc[0], rc[1]]) if self._grid.in_bounds(rc) else math.inf
         if cost < self._best_cost - 0.05:
             self._best_cost, self._since_progress = cost, 0
-        else:
+        elif self._excursion_left == 0:  # noise excursions do not use up the patience
             self._since_progress += 1
         return self._since_progress > self.config.patience_steps
 
@@ -371,18 +403,41 @@ class GeodesicExpert:
         r0, c0 = max(rc[0] - 1, 0), max(rc[1] - 1, 0)
         return bool(np.isfinite(self._field[r0 : rc[0] + 2, c0 : rc[1] + 2]).any())
 
-    def _is_blocked(self, pose: np.ndarray, full_step: float) -> bool:
-        """Count steps whose forward command moved the robot < 25% of the commanded distance."""
-        prev, command = self._prev_pose, self._prev_command
-        if prev is None or command <= 0.1:
-            self._blocked = 0
-            return False
-        moved = float(np.hypot(*(pose[:2] - prev[:2])))
-        self._blocked = self._blocked + 1 if moved < 0.25 * command * full_step else 0
+    def _is_blocked(self, pose: np.ndarray, full_step: float, full_turn: float) -> str | None:
+        """'forward' / 'turn' after ``blocked_steps`` steps whose command moved (turned) the
+        robot < 25% of what it asked for (``full_step`` m, ``full_turn`` rad at full command).
+
+        Also sets ``_strained`` when this step's progress fell below 60% of the command.
+        """
+        prev, (v, w) = self._prev_pose, self._prev_command
+        self._strained, kind = False, None
+        if prev is None:
+            return None
+        heading = np.array([math.cos(prev[2]), math.sin(prev[2])])  # (2,)
+        forward = float(np.dot(pose[:2] - prev[:2], heading))  # m, signed
+        turned = wrap_angle(pose[2] - prev[2]) * math.copysign(1.0, w)  # rad, signed
+        if v > 0.1:
+            self._strained = forward < 0.6 * v * full_step
+            kind = "forward" if forward < 0.25 * v * full_step else None
+        if abs(w) > 0.3:
+            self._strained = self._strained or turned < 0.6 * abs(w) * full_turn
+            if abs(v) <= 0.1 and turned < 0.25 * abs(w) * full_turn:
+                kind = "turn"
+        self._blocked = self._blocked + 1 if kind else 0
         if self._blocked >= self.config.blocked_steps:
             self._blocked = 0
-            return True
-        return False
+            return kind
+        return None
+
+    def _escape_sign(self, pose: np.ndarray) -> float:
+        """+1 to drive forward, -1 backward: whichever side along the heading has more room."""
+        heading = np.array([math.cos(pose[2]), math.sin(pose[2])])  # (2,)
+        room = []
+        for sign in (1.0, -1.0):
+            rc = self._grid.world_to_cell(pose[:2] + sign * 0.15 * heading)  # (2,)
+            inside = self._grid.in_bounds(rc)
+            room.append(float(self._clearance[rc[0], rc[1]]) if inside else -math.inf)
+        return 1.0 if room[0] > room[1] else -1.0
 
     @staticmethod
     def _to_action(v: float, w: float, vmax: float, wmax: float) -> np.ndarray:
@@ -395,7 +450,8 @@ class GeodesicExpert:
         action = self._noisy(self.expert_action())  # (3,)
         self._prev_pose = np.asarray(self.env.unwrapped.robot_pose_world(), dtype=np.float64)
         # Blocked-motion checks only for commands the expert chose (not random excursions).
-        self._prev_command = float(action[0]) if self._excursion_left == 0 else 0.0
+        free_choice = self._excursion_left == 0
+        self._prev_command = (float(action[0]), float(action[1])) if free_choice else (0.0, 0.0)
         return action
 
     def _noisy(self, label: np.ndarray) -> np.ndarray:
