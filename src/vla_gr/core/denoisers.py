@@ -79,7 +79,9 @@ def masked_mean(tokens: torch.Tensor, padding_mask: torch.Tensor | None = None) 
 # Below this many output rows (batch * length), a conv is one im2col matmul: PyTorch's
 # CPU conv1d falls back to a slow path for tiny batch-1 inputs (measured 400 us vs 80 us
 # for 256 channels at length 4), which dominates batch-1 sampling latency.
+# Small kernels (fewer weights than this) are faster in PyTorch's own conv.
 _MATMUL_MAX_ROWS = 64
+_MATMUL_MIN_WEIGHTS = 10_000
 
 
 class FastConv1d(nn.Conv1d):
@@ -90,7 +92,12 @@ class FastConv1d(nn.Conv1d):
         B, C, L = x.shape
         k, s, p = self.kernel_size[0], self.stride[0], self.padding[0]
         L_out = (L + 2 * p - k) // s + 1
-        if B * L_out > _MATMUL_MAX_ROWS or self.groups != 1 or self.dilation[0] != 1:
+        if (
+            B * L_out > _MATMUL_MAX_ROWS
+            or self.in_channels * self.out_channels * k < _MATMUL_MIN_WEIGHTS
+            or self.groups != 1
+            or self.dilation[0] != 1
+        ):
             return super().forward(x)
         xp = F.pad(x, (p, p)) if p else x  # (B, C, L + 2p)
         cols = xp.unfold(2, k, s).permute(0, 2, 1, 3).reshape(B * L_out, C * k)  # (B*Lo, C*k)
