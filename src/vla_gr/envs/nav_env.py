@@ -29,6 +29,7 @@ from pathlib import Path
 import gymnasium as gym
 import mujoco
 import numpy as np
+from gymnasium.vector.utils import read_from_shared_memory
 
 from vla_gr.envs import robot as rb
 from vla_gr.envs.episodes import (
@@ -50,10 +51,52 @@ logger = logging.getLogger(__name__)
 
 MAX_LINEAR_SPEED = 0.5  # m/s
 MAX_ANGULAR_SPEED = 1.0  # rad/s
-SUBSTEPS = 5
+SUBSTEPS = 10  # 10 ms physics steps: stiff enough contacts (< 1 mm penetration at a wall)
 BLOCKED_FRACTION = 0.5  # achieved / commanded displacement below this + contact = collision
 INSTRUCTION_MAX_LENGTH = 256
 INSTRUCTION_CHARSET = "".join(c for c in string.printable if c not in "\t\n\r\x0b\x0c")
+
+
+class InstructionSpace(gym.spaces.Text):
+    """The ``instruction`` Text space; batched reads from shared memory stay live.
+
+    Gymnasium's ``AsyncVectorEnv`` reads its shared observation buffer once, at
+    construction; arrays are views and update in place, but a Text read is a tuple of
+    strings frozen at that moment (every later batch would repeat it). For this subclass
+    the read returns a :class:`LiveTextBatch` that decodes the buffer on access.
+    """
+
+
+class LiveTextBatch(Sequence):
+    """Strings (n,) decoded on access from a shared int32 buffer (n, max_length)."""
+
+    def __init__(self, space: gym.spaces.Text, shared_memory, n: int) -> None:
+        self._space, self._shared, self._n = space, shared_memory, n
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return tuple(self[i] for i in range(*index.indices(self._n)))
+        codes = np.frombuffer(self._shared.get_obj(), dtype=np.int32)
+        codes = codes.reshape(self._n, self._space.max_length)[index]  # (max_length,)
+        chars, size = self._space.character_list, len(self._space.character_set)
+        return "".join(chars[c] for c in codes if c < size)
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, Sequence) and tuple(self) == tuple(other)
+
+    def __deepcopy__(self, memo) -> tuple[str, ...]:
+        return tuple(self)  # AsyncVectorEnv(copy=True) hands out a snapshot
+
+    def __repr__(self) -> str:
+        return repr(tuple(self))
+
+
+@read_from_shared_memory.register(InstructionSpace)
+def _read_instructions(space: InstructionSpace, shared_memory, n: int = 1) -> LiveTextBatch:
+    return LiveTextBatch(space, shared_memory, n)
 
 
 @dataclass
@@ -160,7 +203,7 @@ class ObjectNavEnv(gym.Env):
             "rgb": gym.spaces.Box(0, 255, (s, s, 3), np.uint8),
             "depth": gym.spaces.Box(0.0, self.max_depth, (s, s, 1), np.float32),
             "pose": gym.spaces.Box(-np.inf, np.inf, (3,), np.float32),
-            "instruction": gym.spaces.Text(
+            "instruction": InstructionSpace(
                 max_length=INSTRUCTION_MAX_LENGTH, min_length=0, charset=INSTRUCTION_CHARSET
             ),
         }
@@ -340,18 +383,18 @@ class ObjectNavEnv(gym.Env):
         scene = compile_scene(house, self.image_size, self.control_hz, self.max_depth)
         self._scenes[key] = scene
         while len(self._scenes) > self.scene_cache_size:
-            old_key, old = self._scenes.popitem(last=False)
-            if old is not self._scene:
-                old.close()
-            else:  # still running: put it back at the front, evict the next one
-                self._scenes[old_key] = old
-                self._scenes.move_to_end(old_key, last=False)
-                if len(self._scenes) <= self.scene_cache_size + 1:
-                    break
+            _, old = self._scenes.popitem(last=False)  # least recently used
+            old.close()
         logger.debug("compiled scene %s (%d geoms)", key, scene.model.ngeom)
         return scene
 
     def _start_episode(self, spec: EpisodeSpec, house: House | None) -> None:
+        self._scene, self._done = None, True  # the old episode is over even if this one fails
+        if not self.observation_space["instruction"].contains(spec.instruction):
+            raise ValueError(
+                f"episode {spec.episode_id}: instruction {spec.instruction!r} must be printable "
+                f"ASCII of at most {INSTRUCTION_MAX_LENGTH} characters"
+            )
         scene = self._load_scene(spec, house)
         goal_field = scene.goal_fields.get(spec.goal_instance_id)
         if goal_field is None and spec.goal_instance_id in {

@@ -1,0 +1,295 @@
+"""VLAGR/ObjectNav-v0: sensors, collisions, replay, action checks, STOP, vector envs."""
+
+import dataclasses
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import vla_gr.envs  # noqa: F401  (registers the id)
+from vla_gr.envs import ENV_ID
+from vla_gr.envs.episodes import EpisodeSpec, goal_field, sample_start, save_episodes
+from vla_gr.envs.geodesic import ROBOT_RADIUS, sample_field
+
+from .test_episodes import box_room_house
+
+EAST_WALL = 6.1  # inner face of box_room_house's east wall
+
+
+def room_spec(x: float, y: float, yaw: float, goal: int = 3, **kw) -> EpisodeSpec:
+    fields = dict(
+        episode_id="room-0",
+        split="val",
+        scene_seed=5,
+        num_rooms=1,
+        clutter=1.0,
+        start_x=x,
+        start_y=y,
+        start_yaw=yaw,
+        goal_instance_id=goal,
+        goal_category="chair",
+        instruction="find the red chair",
+        geodesic_start_distance=0.0,
+    )
+    fields.update(kw)
+    return EpisodeSpec(**fields)
+
+
+@pytest.fixture(scope="module")
+def room():
+    return box_room_house()
+
+
+@pytest.fixture
+def env(room):
+    e = gym.make(ENV_ID, image_size=64, semantic=True)
+    yield e
+    e.close()
+
+
+def run_room(env, room, spec):
+    return env.reset(options={"episode": spec, "house": room})
+
+
+def house_specs(n: int = 3, index: int = 0) -> list[EpisodeSpec]:
+    """Specs on a generated val house (explicit, so these tests need no sampler)."""
+    from vla_gr.envs.house import generate_house, split_seed
+
+    seed = split_seed("val", index)
+    house = generate_house(seed)
+    specs = []
+    for i, obj in enumerate(house.objects[:n]):
+        rng = np.random.default_rng(i)
+        x, y, yaw, dist = sample_start(house, goal_field(house, obj.instance_id), rng)
+        specs.append(
+            EpisodeSpec(
+                f"gen-{i}",
+                "val",
+                seed,
+                None,
+                1.0,
+                x,
+                y,
+                yaw,
+                obj.instance_id,
+                obj.category,
+                f"find the {obj.color} {obj.category}",
+                dist,
+            )
+        )
+    return specs
+
+
+# ----------------------------------------------------------------------------- spaces, sensors
+
+
+def test_observation_and_info_contract(env, room):
+    obs, info = run_room(env, room, room_spec(1.0, 1.0, 0.3))
+    assert env.observation_space.contains(obs)
+    assert obs["rgb"].shape == (64, 64, 3) and obs["rgb"].dtype == np.uint8
+    assert obs["depth"].shape == (64, 64, 1) and obs["depth"].dtype == np.float32
+    assert obs["pose"].dtype == np.float32 and np.all(obs["pose"] == 0)
+    assert obs["semantic"].shape == (64, 64) and obs["semantic"].dtype == np.int32
+    assert obs["instruction"] == "find the red chair"
+    for key in ("success", "spl", "soft_spl", "distance_to_goal", "collisions", "path_length"):
+        assert key in info
+    assert info["episode_id"] == "room-0"
+    u = env.unwrapped
+    assert u.traversable.shape == room.grid.shape == u.goal_distance.shape
+    assert u.goal.instance_id == 3 and u.episode_spec.start_x == 1.0
+    start = sample_field(u.goal_distance, room.grid, 1.0, 1.0)
+    assert info["geodesic_start_distance"] == pytest.approx(start)
+    assert info["distance_to_goal"] == pytest.approx(start)
+    np.testing.assert_allclose(u.robot_pose_world(), [1.0, 1.0, 0.3])
+
+
+@pytest.mark.parametrize("x", [2.0, 4.3, 5.5])
+def test_depth_centre_pixel_reads_wall(env, room, x):
+    obs, _ = run_room(env, room, room_spec(x, 1.0, 0.0))  # facing the east wall
+    centre = obs["depth"][31:33, 31:33, 0]
+    np.testing.assert_allclose(centre, EAST_WALL - x, atol=0.02)
+
+
+def test_semantic_shows_goal_when_facing_it(env, room):
+    obs, _ = run_room(env, room, room_spec(3.5, 2.0, 0.0))  # the chair is 1.25 m ahead
+    ids = obs["semantic"]
+    assert (ids == 3).mean() > 0.02
+    assert set(np.unique(ids)) <= {0, 3, 4}
+    cols = np.nonzero((ids == 3).any(axis=0))[0]
+    assert cols.min() < 32 < cols.max()  # centred in the image
+    obs, _ = run_room(env, room, room_spec(3.5, 2.0, math.pi))  # facing away
+    assert not (obs["semantic"] == 3).any()
+
+
+# ----------------------------------------------------------------------------- motion
+
+
+def test_pose_is_relative_to_start(env, room):
+    run_room(env, room, room_spec(1.0, 1.0, math.pi / 2))  # facing north (+y)
+    for _ in range(10):
+        obs, *_ = env.step(np.array([1.0, 0.0, -1.0], np.float32))
+    np.testing.assert_allclose(obs["pose"], [0.5, 0.0, 0.0], atol=0.02)
+    np.testing.assert_allclose(env.unwrapped.robot_pose_world()[:2], [1.0, 1.5], atol=0.02)
+    for _ in range(5):
+        obs, *_ = env.step(np.array([0.0, 1.0, -1.0], np.float32))
+    assert obs["pose"][2] == pytest.approx(0.5, abs=0.02)
+    for _ in range(10):  # drive 0.5 m along the new heading (start-frame angle 0.5 rad)
+        obs, _, _, _, info = env.step(np.array([1.0, 0.0, -1.0], np.float32))
+    expect = np.array([0.5 + 0.5 * math.cos(0.5), 0.5 * math.sin(0.5)])
+    np.testing.assert_allclose(obs["pose"][:2], expect, atol=0.03)
+    assert info["path_length"] == pytest.approx(1.0, abs=0.03)
+    assert info["collisions"] == 0
+
+
+def test_driving_into_wall_counts_collisions_and_stops(env, room):
+    run_room(env, room, room_spec(5.2, 1.0, 0.0))
+    flags = []
+    for _ in range(40):  # 0.72 m of free space (~15 steps), then 25 steps pushing the wall
+        _, _, term, trunc, info = env.step(np.array([1.0, 0.0, -1.0], np.float32))
+        flags.append(info["collided"])
+        x = env.unwrapped.robot_pose_world()[0]
+        assert x <= EAST_WALL - ROBOT_RADIUS + 0.01  # never through the wall
+    assert not any(flags[:14]) and all(flags[16:])
+    assert info["collisions"] == sum(flags) >= 24
+    assert x == pytest.approx(EAST_WALL - ROBOT_RADIUS, abs=0.01)
+    assert not (term or trunc)
+    # Turning in place against the wall is not a collision.
+    _, _, _, _, info = env.step(np.array([0.0, 1.0, -1.0], np.float32))
+    assert not info["collided"]
+
+
+# ----------------------------------------------------------------------------- actions, STOP
+
+
+def test_action_validation(env, room):
+    run_room(env, room, room_spec(1.0, 1.0, 0.0))
+    with pytest.raises(ValueError, match="finite"):
+        env.step(np.array([np.nan, 0.0, -1.0], np.float32))
+    with pytest.raises(ValueError, match="finite"):
+        env.step(np.array([0.0, np.inf, -1.0]))
+    with pytest.raises(ValueError, match="shape"):
+        env.step(np.zeros(2, np.float32))
+    with pytest.raises(ValueError, match="shape"):
+        env.step(np.zeros((1, 3), np.float32))
+    obs_big, *_ = env.step(np.array([7.0, -3.0, -5.0], np.float32))  # clipped to (1, -1, -1)
+    run_room(env, room, room_spec(1.0, 1.0, 0.0))
+    obs_one, *_ = env.step(np.array([1.0, -1.0, -1.0], np.float32))
+    assert obs_big["pose"].tobytes() == obs_one["pose"].tobytes()
+    assert obs_big["rgb"].tobytes() == obs_one["rgb"].tobytes()
+
+
+def test_stop_success_iff_within_success_distance(env, room):
+    run_room(env, room, room_spec(4.0, 2.0, 0.0))  # 0.75 m from the chair's footprint
+    _, _, term, trunc, info = env.step(np.array([0.0, 0.0, 1.0], np.float32))
+    assert term and not trunc
+    assert info["success"] == 1.0 and info["spl"] == pytest.approx(1.0)
+    assert info["distance_to_goal"] == pytest.approx(0.75, abs=0.06)
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(np.zeros(3, np.float32))
+    run_room(env, room, room_spec(2.5, 2.0, 0.0))  # 2.25 m away: STOP fails
+    _, _, term, _, info = env.step(np.array([0.0, 0.0, 0.5], np.float32))
+    assert term and info["success"] == 0.0 and info["spl"] == 0.0
+
+
+def test_truncation_is_a_failure(room):
+    env = gym.make(ENV_ID, max_episode_steps=3)
+    run_room(env, room, room_spec(1.0, 1.0, 0.0))
+    outs = [env.step(np.array([0.2, 0.0, -1.0], np.float32)) for _ in range(3)]
+    assert [o[3] for o in outs] == [False, False, True]
+    assert not any(o[2] for o in outs) and outs[-1][4]["success"] == 0.0
+    env.close()
+
+
+def test_invalid_spec_raises_with_reason(env, room):
+    with pytest.raises(ValueError, match="inside an obstacle"):
+        run_room(env, room, room_spec(5.0, 2.0, 0.0))
+    with pytest.raises(ValueError, match="missing"):
+        run_room(env, room, room_spec(1.0, 1.0, 0.0, goal=42))
+
+
+# ----------------------------------------------------------------------------- replay, caching
+
+
+def test_same_spec_gives_identical_observation_bytes():
+    spec = house_specs(1)[0]
+    rng = np.random.default_rng(3)
+    actions = [np.array([rng.uniform(0, 1), rng.uniform(-1, 1), -1], np.float32) for _ in range(15)]
+    runs = []
+    for _ in range(2):
+        env = gym.make(ENV_ID, semantic=True)
+        obs, _ = env.reset(options={"episode": spec})
+        frames = [obs]
+        for a in actions:
+            frames.append(env.step(a)[0])
+        env.close()
+        runs.append(frames)
+    for a, b in zip(*runs):
+        for key in ("rgb", "depth", "pose", "semantic"):
+            assert a[key].tobytes() == b[key].tobytes(), key
+    assert not np.array_equal(runs[0][0]["rgb"], runs[0][-1]["rgb"])  # it did move
+
+
+def test_scene_cache_reuses_compiled_model(room):
+    specs = house_specs(2)
+    env = gym.make(ENV_ID, scene_cache_size=1)
+    u = env.unwrapped
+    env.reset(options={"episode": specs[0]})
+    model = u._scene.model
+    env.reset(options={"episode": specs[1]})  # same scene seed, another goal
+    assert u._scene.model is model
+    run_room(env, room, room_spec(1.0, 1.0, 0.0))  # another scene evicts the first
+    env.reset(options={"episode": specs[0]})
+    assert u._scene.model is not model and len(u._scenes) == 1
+    env.close()
+
+
+def test_episodes_file_and_seed_selection(tmp_path):
+    specs = house_specs(3)
+    path = save_episodes(tmp_path / "eps.jsonl", specs)
+    env = gym.make(ENV_ID, episodes=str(path))
+    assert env.reset(seed=1)[1]["episode_id"] == "gen-1"
+    assert env.reset()[1]["episode_id"] == "gen-2"  # no seed: the next episode
+    assert env.reset(seed=4)[1]["episode_id"] == "gen-1"  # modulo the file length
+    obs, _ = env.reset(options={"episode": dataclasses.asdict(specs[0])})  # dicts work too
+    assert obs["instruction"] == specs[0].instruction
+    env.close()
+
+
+def test_split_reset_seed_is_deterministic():
+    pytest.importorskip("vla_gr.envs.instructions")
+    a, b = gym.make(ENV_ID), gym.make(ENV_ID)
+    oa, ia = a.reset(seed=2)
+    ob, ib = b.reset(seed=2)
+    assert ia["episode_id"] == ib["episode_id"] == "val-000002"
+    assert oa["rgb"].tobytes() == ob["rgb"].tobytes() and oa["instruction"] == ob["instruction"]
+    assert a.unwrapped.episode_spec == b.unwrapped.episode_spec
+    a.close()
+    b.close()
+
+
+# ----------------------------------------------------------------------------- vector envs
+
+
+@pytest.mark.parametrize("mode", ["sync", "async"])
+def test_vector_envs_step(mode, tmp_path):
+    specs = house_specs(3)
+    path = save_episodes(tmp_path / "eps.jsonl", specs)
+    vec = gym.make_vec(ENV_ID, num_envs=2, vectorization_mode=mode, episodes=str(path))
+    try:
+        # Instructions must follow the episodes (gymnasium's shared-memory Text read is
+        # frozen at construction unless InstructionSpace keeps it live).
+        obs, info = vec.reset(seed=1)
+        assert list(info["episode_id"]) == ["gen-1", "gen-2"]
+        assert tuple(obs["instruction"]) == (specs[1].instruction, specs[2].instruction)
+        obs, info = vec.reset(seed=0)
+        assert obs["rgb"].shape == (2, 64, 64, 3) and obs["depth"].shape == (2, 64, 64, 1)
+        assert list(info["episode_id"]) == ["gen-0", "gen-1"]
+        assert tuple(obs["instruction"]) == (specs[0].instruction, specs[1].instruction)
+        actions = np.tile(np.array([1.0, 0.2, -1.0], np.float32), (2, 1))
+        for _ in range(3):
+            obs, rew, term, trunc, info = vec.step(actions)
+        assert obs["pose"].shape == (2, 3) and np.all(obs["pose"][:, 0] > 0.05)
+        assert not term.any() and not trunc.any()
+    finally:
+        vec.close()
