@@ -41,9 +41,18 @@ class EnvConfig:
     success_distance: float = 1.0
     semantic: bool = False
     episodes: str | None = None  # optional JSONL file of episode specs
+    max_depth: float = 10.0  # depth readings are clipped to [0, max_depth] metres
+    num_rooms: int | None = None  # house size knob (None: the generator's random 1-6)
+    clutter: float = 1.0  # furniture density knob of the house generator
+    scene_cache_size: int = 4  # compiled houses kept per env (LRU)
 
     def __post_init__(self) -> None:
         check_choice("env.split", self.split, SPLITS)
+        check_positive("env.max_depth", self.max_depth)
+        if self.num_rooms is not None and not 1 <= self.num_rooms <= 6:
+            raise ValueError(f"env.num_rooms={self.num_rooms} must be None or in [1, 6]")
+        check_positive("env.clutter", self.clutter, allow_zero=True)
+        check_positive("env.scene_cache_size", self.scene_cache_size)
         if not 16 <= self.image_size <= 512:
             raise ValueError(f"env.image_size={self.image_size} must be in [16, 512]")
         check_positive("env.control_hz", self.control_hz)
