@@ -8,7 +8,8 @@
   ``x_t = t * noise + (1 - t) * actions``, Beta-shaped times emphasising noise; see
   :mod:`vla_gr.core.flow_matching`), Euler or midpoint integration.
 - ``objective="l1"`` -- OpenVLA-OFT's parallel-decoding L1 regression
-  (:class:`L1RegressionHead`): one forward pass, no sampling loop.
+  (:class:`L1RegressionHead`, defined in :mod:`vla_gr.core.regression_head`): one
+  forward pass, no sampling loop.
 
 Actions are assumed normalised to ``[-1, 1]`` (``clip_sample`` clips samples there).
 Context is a ``(B, C)`` vector or ``(B, T, C)`` tokens (with an optional bool
@@ -45,7 +46,14 @@ from vla_gr.core.flow_matching import (
     sample_flow_time,
 )
 from vla_gr.core.noise_targets import PREDICTION_TYPES, diffusion_target, predicted_x0, q_sample
-from vla_gr.core.trajectory_attention import TrajectoryEncoder, as_context_tokens
+from vla_gr.core.regression_head import (
+    L1RegressionHead,
+    check_actions,
+    check_choice,
+    check_positive_int,
+    ctx_mask,
+)
+from vla_gr.core.trajectory_attention import as_context_tokens
 
 __all__ = [
     "OBJECTIVES",
@@ -64,133 +72,6 @@ BETA_SCHEDULES = ("squaredcos_cap_v2", "linear", "scaled_linear", "sigmoid")
 # Flow times t in [0, 1] are fed to the denoiser as t * 1000 (as diffusers' flow-matching
 # schedulers do), so the sinusoidal time embedding resolves them like diffusion steps.
 FLOW_TIME_SCALE = 1000.0
-
-
-def _check_choice(name: str, value, choices) -> None:
-    if value not in choices:
-        raise ValueError(f"{name}={value!r} is not valid; choose one of {list(choices)}")
-
-
-def _check_positive_int(name: str, value) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-        raise ValueError(f"{name}={value!r} must be a positive int")
-
-
-def _check_actions(actions: torch.Tensor, horizon: int, action_dim: int) -> None:
-    if actions.dim() != 3 or actions.shape[1] != horizon or actions.shape[2] != action_dim:
-        raise ValueError(
-            f"actions must be (B, {horizon}, {action_dim}) = (B, horizon, action_dim); "
-            f"got {tuple(actions.shape)}"
-        )
-
-
-class L1RegressionHead(nn.Module):
-    """Parallel-decoding L1 regression head (OpenVLA-OFT).
-
-    ``horizon`` learned action queries attend bidirectionally to each other and to
-    the context in one pass (:class:`TrajectoryEncoder`); trained with an L1 loss. A
-    regression head cannot represent multi-modal action distributions: on two equally
-    likely modes it predicts a point between them.
-
-    Args:
-        action_dim: action size ``A``.
-        hidden_dim: transformer width ``D``.
-        context_dim: context width ``C`` (default ``hidden_dim``).
-        horizon: chunk length ``H``.
-        num_layers: transformer blocks.
-        num_heads: attention heads.
-        dropout: dropout probability.
-        clip_sample: clip predictions to ``[-1, 1]`` at inference.
-        gradient_checkpointing: recompute blocks in backward.
-        mlp_ratio: MLP width as a multiple of ``hidden_dim``.
-    """
-
-    def __init__(
-        self,
-        action_dim: int = 7,
-        hidden_dim: int = 256,
-        context_dim: int | None = None,
-        horizon: int = 16,
-        num_layers: int = 2,
-        num_heads: int = 4,
-        dropout: float = 0.0,
-        clip_sample: bool = True,
-        gradient_checkpointing: bool = False,
-        mlp_ratio: float = 4.0,
-    ) -> None:
-        super().__init__()
-        for name, val in (("action_dim", action_dim), ("hidden_dim", hidden_dim)):
-            _check_positive_int(name, val)
-        _check_positive_int("horizon", horizon)
-        self.action_dim, self.horizon, self.clip_sample = action_dim, horizon, clip_sample
-        self.context_dim = hidden_dim if context_dim is None else context_dim
-        self.encoder = TrajectoryEncoder(
-            action_dim,
-            hidden_dim,
-            num_layers,
-            horizon,
-            use_rope=True,
-            num_heads=num_heads,
-            causal=False,
-            context_dim=self.context_dim,
-            mlp_ratio=mlp_ratio,
-            dropout=dropout,
-            gradient_checkpointing=gradient_checkpointing,
-        )
-
-    def forward(
-        self,
-        actions: torch.Tensor,
-        context: torch.Tensor,
-        context_padding_mask: torch.Tensor | None = None,
-        generator: torch.Generator | None = None,
-    ) -> dict[str, torch.Tensor]:
-        """L1 training loss.
-
-        Args:
-            actions: ``(B, H, A)`` target actions.
-            context: ``(B, C)`` or ``(B, T, C)``.
-            context_padding_mask: optional bool ``(B, T)``.
-            generator: unused (interface parity with the generative heads).
-
-        Returns:
-            ``{"loss": scalar, "l1": scalar (detached)}``.
-        """
-        _check_actions(actions, self.horizon, self.action_dim)
-        ctx = as_context_tokens(context, self.context_dim)  # (B, T, C)
-        pred = self.encoder(ctx, self.horizon, ctx_mask(context_padding_mask))  # (B, H, A)
-        loss = F.l1_loss(pred, actions)
-        return {"loss": loss, "l1": loss.detach()}
-
-    @torch.no_grad()
-    def get_action(
-        self,
-        context: torch.Tensor,
-        num_inference_steps: int | None = None,
-        sampler: str | None = None,
-        generator: torch.Generator | None = None,
-        context_padding_mask: torch.Tensor | None = None,
-    ) -> torch.Tensor:
-        """Predict a chunk in one pass (``num_inference_steps``/``sampler`` are ignored).
-
-        Args:
-            context: ``(B, C)`` or ``(B, T, C)``.
-            num_inference_steps: ignored.
-            sampler: ignored.
-            generator: ignored.
-            context_padding_mask: optional bool ``(B, T)``.
-
-        Returns:
-            ``(B, H, A)``.
-        """
-        ctx = as_context_tokens(context, self.context_dim)  # (B, T, C)
-        out = self.encoder(ctx, self.horizon, ctx_mask(context_padding_mask))  # (B, H, A)
-        return out.clamp(-1.0, 1.0) if self.clip_sample else out
-
-
-def ctx_mask(mask: torch.Tensor | None) -> torch.Tensor | None:
-    """Bool ``(B, T)`` padding mask (``True`` = padded) or ``None``."""
-    return None if mask is None else mask.bool()
 
 
 class DiffusionPolicy(nn.Module):
@@ -248,10 +129,10 @@ class DiffusionPolicy(nn.Module):
         default_sampler: str | None = None,
     ) -> None:
         super().__init__()
-        _check_choice("objective", objective, OBJECTIVES)
-        _check_choice("prediction_type", prediction_type, PREDICTION_TYPES)
-        _check_choice("denoiser", denoiser, DENOISERS)
-        _check_choice("beta_schedule", beta_schedule, BETA_SCHEDULES)
+        check_choice("objective", objective, OBJECTIVES)
+        check_choice("prediction_type", prediction_type, PREDICTION_TYPES)
+        check_choice("denoiser", denoiser, DENOISERS)
+        check_choice("beta_schedule", beta_schedule, BETA_SCHEDULES)
         for name, val in (
             ("action_dim", action_dim),
             ("hidden_dim", hidden_dim),
@@ -259,9 +140,9 @@ class DiffusionPolicy(nn.Module):
             ("horizon", horizon),
             ("num_layers", num_layers),
         ):
-            _check_positive_int(name, val)
+            check_positive_int(name, val)
         if context_dim is not None:
-            _check_positive_int("context_dim", context_dim)
+            check_positive_int("context_dim", context_dim)
         if flow_beta_alpha <= 0:
             raise ValueError(f"flow_beta_alpha={flow_beta_alpha} must be > 0")
         if not 0.0 < flow_time_scale <= 1.0:
@@ -275,7 +156,7 @@ class DiffusionPolicy(nn.Module):
         if default_sampler is None:
             default_sampler = samplers[0] if samplers else None
         elif objective != "l1":
-            _check_choice("default_sampler", default_sampler, samplers)
+            check_choice("default_sampler", default_sampler, samplers)
         self.default_sampler = default_sampler
 
         self.head: L1RegressionHead | None = None
@@ -389,7 +270,7 @@ class DiffusionPolicy(nn.Module):
         """
         if self.head is not None:
             return self.head(actions, context, context_padding_mask)
-        _check_actions(actions, self.horizon, self.action_dim)
+        check_actions(actions, self.horizon, self.action_dim)
         ctx = as_context_tokens(context, self.context_dim)  # (B, T, C)
         mask = ctx_mask(context_padding_mask)
         B = actions.shape[0]
@@ -473,8 +354,8 @@ class DiffusionPolicy(nn.Module):
     ) -> torch.Tensor:
         """Body of :meth:`get_action` (runs under ``torch.inference_mode``)."""
         sampler = self.default_sampler if sampler is None else sampler
-        _check_choice("sampler", sampler, SAMPLERS[self.objective])
-        _check_positive_int("num_inference_steps", num_inference_steps)
+        check_choice("sampler", sampler, SAMPLERS[self.objective])
+        check_positive_int("num_inference_steps", num_inference_steps)
         ctx = as_context_tokens(context, self.context_dim)  # (B, T, C)
         shape = (ctx.shape[0], self.horizon, self.action_dim)
         if noise is None:

@@ -3,9 +3,10 @@
 The building blocks of the trajectory transformer (Actra / X-VLA style) and of the
 transformer denoiser of the action heads:
 
-- :func:`rope_angles` / :func:`apply_rope` -- rotary position embeddings (RoFormer):
-  dimension pairs ``(2i, 2i+1)`` are rotated by ``position * theta_i`` with
-  ``theta_i = base ** (-2i / D)``, so ``q_m . k_n`` depends only on ``m - n``.
+- :func:`apply_rope` (re-exported from :mod:`vla_gr.core.rope`) -- rotary position
+  embeddings (RoFormer): dimension pairs ``(2i, 2i+1)`` are rotated by
+  ``position * theta_i`` with ``theta_i = base ** (-2i / D)``, so ``q_m . k_n``
+  depends only on ``m - n``.
 - :class:`MultiHeadAttention` -- self or cross attention on
   :func:`torch.nn.functional.scaled_dot_product_attention` (fused / flash kernels on
   GPU) with projections named ``q_proj``, ``k_proj``, ``v_proj``, ``out_proj`` so that
@@ -25,6 +26,15 @@ import torch.nn.functional as F
 from torch import nn
 from torch.utils.checkpoint import checkpoint
 
+from vla_gr.core.rope import (
+    apply_rope,
+    apply_rope_complex,
+    apply_rope_cos_sin,
+    apply_rope_tables,
+    rope_angles,
+    rope_tables,
+)
+
 __all__ = [
     "rope_angles",
     "apply_rope",
@@ -38,118 +48,6 @@ __all__ = [
     "TrajectoryEncoder",
     "as_context_tokens",
 ]
-
-
-# --------------------------------------------------------------------------- RoPE (pure)
-
-
-def rope_angles(
-    positions: torch.Tensor, dim: int, base: float = 10000.0
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Cosines and sines of the rotary angles ``position * theta_i``.
-
-    Args:
-        positions: ``(T,)`` or ``(B, T)`` positions (integer or float).
-        dim: even feature size ``D`` that will be rotated.
-        base: frequency base; ``theta_i = base ** (-2i / D)``.
-
-    Returns:
-        ``(cos, sin)``, each ``(T, D/2)`` or ``(B, T, D/2)`` in float32.
-    """
-    if dim % 2 != 0 or dim <= 0:
-        raise ValueError(f"dim={dim} must be a positive even number for RoPE")
-    if positions.dim() not in (1, 2):
-        raise ValueError(f"positions must be (T,) or (B, T); got shape {tuple(positions.shape)}")
-    idx = torch.arange(0, dim, 2, device=positions.device, dtype=torch.float32)  # (D/2,)
-    inv_freq = base ** (-idx / dim)  # (D/2,)
-    angles = positions.to(torch.float32).unsqueeze(-1) * inv_freq  # (..., T, D/2)
-    return angles.cos(), angles.sin()
-
-
-def apply_rope_cos_sin(x: torch.Tensor, cos: torch.Tensor, sin: torch.Tensor) -> torch.Tensor:
-    """Rotate pairs ``(x[..., 2i], x[..., 2i+1])`` by precomputed angles.
-
-    Args:
-        x: ``(..., T, D)`` features; ``(B, ..., T, D)`` when ``cos`` is batched.
-        cos: ``(T, D/2)`` or ``(B, T, D/2)`` from :func:`rope_angles`.
-        sin: same shape as ``cos``.
-
-    Returns:
-        Tensor of the shape and dtype of ``x``.
-    """
-    if cos.dim() == 3 and x.dim() > 3:
-        # (B, T, D/2) -> (B, 1, ..., 1, T, D/2) to broadcast over head dims.
-        shape = (cos.shape[0],) + (1,) * (x.dim() - 3) + cos.shape[1:]
-        cos, sin = cos.view(shape), sin.view(shape)
-    xf = x.float().unflatten(-1, (-1, 2))  # (..., T, D/2, 2)
-    x1, x2 = xf[..., 0], xf[..., 1]  # (..., T, D/2)
-    out = torch.stack((x1 * cos - x2 * sin, x1 * sin + x2 * cos), dim=-1)  # (..., T, D/2, 2)
-    return out.flatten(-2).to(x.dtype)  # (..., T, D)
-
-
-def rope_tables(cos: torch.Tensor, sin: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Interleaved full-width tables for :func:`apply_rope_tables`.
-
-    Args:
-        cos: ``(..., T, D/2)`` from :func:`rope_angles`.
-        sin: same shape.
-
-    Returns:
-        ``(cos2, sin2)``, each ``(..., T, D)``: ``[c0, c0, c1, c1, ...]`` and
-        ``[-s0, s0, -s1, s1, ...]``.
-    """
-    cos2 = cos.repeat_interleave(2, dim=-1)  # (..., T, D)
-    sin2 = torch.stack((-sin, sin), dim=-1).flatten(-2)  # (..., T, D)
-    return cos2, sin2
-
-
-def apply_rope_tables(x: torch.Tensor, cos2: torch.Tensor, sin2: torch.Tensor) -> torch.Tensor:
-    """RoPE as ``x * cos2 + swap_pairs(x) * sin2`` (4 ops; same result as :func:`apply_rope`).
-
-    Args:
-        x: ``(..., T, D)``.
-        cos2: ``(T, D)`` from :func:`rope_tables` (in the dtype of ``x``).
-        sin2: ``(T, D)``.
-
-    Returns:
-        ``(..., T, D)``.
-    """
-    swapped = x.unflatten(-1, (-1, 2)).flip(-1).flatten(-2)  # (..., T, D): (x1, x0, x3, x2..)
-    return x * cos2 + swapped * sin2
-
-
-def apply_rope_complex(x: torch.Tensor, cis: torch.Tensor) -> torch.Tensor:
-    """RoPE as one complex multiply (LLaMA style); float32 ``x`` only.
-
-    Args:
-        x: ``(..., T, D)`` float32 with unit stride in the last dim.
-        cis: ``(T, D/2)`` complex64 ``cos + i sin`` (``torch.polar(1, angle)``).
-
-    Returns:
-        ``(..., T, D)`` float32.
-    """
-    xc = torch.view_as_complex(x.unflatten(-1, (-1, 2)))  # (..., T, D/2) complex
-    return torch.view_as_real(xc * cis).flatten(-2)  # (..., T, D)
-
-
-def apply_rope(x: torch.Tensor, positions: torch.Tensor, base: float = 10000.0) -> torch.Tensor:
-    """Rotary position embedding of ``x`` at ``positions`` (norm preserving).
-
-    Args:
-        x: ``(..., T, D)`` with ``D`` even (e.g. ``(B, heads, T, head_dim)``).
-        positions: ``(T,)`` shared positions or ``(B, T)`` per-sample positions
-            (then ``x`` must have the batch as its first dimension).
-        base: frequency base of ``theta_i = base ** (-2i / D)``.
-
-    Returns:
-        Tensor with the shape of ``x``.
-    """
-    if x.shape[-2] != positions.shape[-1]:
-        raise ValueError(
-            f"positions has {positions.shape[-1]} entries but x has T={x.shape[-2]} tokens"
-        )
-    cos, sin = rope_angles(positions.to(x.device), x.shape[-1], base)  # (..., T, D/2)
-    return apply_rope_cos_sin(x, cos, sin)
 
 
 # --------------------------------------------------------------------------- masks
@@ -544,7 +442,3 @@ class TrajectoryEncoder(nn.Module):
                 x = block(x, ctx, context_padding_mask, causal)  # (B, K, D)
         return x
 
-
-def num_parameters(module: nn.Module) -> int:
-    """Total number of parameters of ``module``."""
-    return sum(p.numel() for p in module.parameters())
