@@ -185,7 +185,7 @@ class DiffusionPolicy(nn.Module):
                 action_dim,
                 self.context_dim,
                 tuple(down_dims),
-                time_embed_dim or max(hidden_dim // 2, 4),
+                time_embed_dim or max(hidden_dim // 4 * 2, 4),  # even, ~hidden_dim / 2
                 kernel_size,
                 n_groups,
                 gradient_checkpointing,
