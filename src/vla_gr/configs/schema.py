@@ -42,7 +42,7 @@ class EnvConfig:
     semantic: bool = False
     episodes: str | None = None  # optional JSONL file of episode specs
     max_depth: float = 10.0  # depth readings are clipped to [0, max_depth] metres
-    num_rooms: int | None = None  # house size knob (None: the generator's random 1-6)
+    num_rooms: int | None = None  # house size knob (None: the generator draws 2-5)
     clutter: float = 1.0  # furniture density knob of the house generator
     scene_cache_size: int = 4  # compiled houses kept per env (LRU)
 
