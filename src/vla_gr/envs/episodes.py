@@ -17,16 +17,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy import ndimage
 
 from vla_gr.envs.geodesic import (
     ROBOT_RADIUS,
-    goal_distance_field,
     sample_field,
     traversable_cells,
 )
+from vla_gr.envs.geodesic import goal_distance_field as goal_field
 from vla_gr.envs.scene import House
-from vla_gr.geometry import geodesic_distance, inflate_obstacles
 
 logger = logging.getLogger(__name__)
 
@@ -85,28 +83,6 @@ class EpisodeSpec:
         for key in ("scene_seed", "goal_instance_id"):
             rec[key] = int(rec[key])
         return cls(**rec)
-
-
-def goal_field(house: House, instance_id: int, traversable: np.ndarray | None = None) -> np.ndarray:
-    """Geodesic distance (H, W) in metres from goal ``instance_id``'s footprint, for robot centres.
-
-    ``envs.geodesic.goal_distance_field`` when its front can leave the footprint (a
-    traversable cell touches it). When the goal's own inflation ring (cells within the
-    robot radius of the footprint) would trap the front, only the *other* obstacles are
-    inflated, so every reachable centre gets its distance to the footprint (the quantity
-    that function defines). ``traversable`` (H, W) may be passed when already computed.
-    """
-    footprint = house.object_ids == instance_id  # (H, W)
-    if not footprint.any():
-        raise ValueError(f"object {instance_id} has no footprint cells in house {house.seed}")
-    if traversable is None:
-        traversable = traversable_cells(house)
-    ring = ndimage.binary_dilation(footprint, structure=np.ones((3, 3), bool)) & ~footprint
-    if (ring & traversable).any():
-        return goal_distance_field(house, instance_id)  # (H, W)
-    others = house.occupancy & ~footprint  # (H, W)
-    blocked = inflate_obstacles(others, ROBOT_RADIUS, house.grid.cell_size) & ~footprint
-    return geodesic_distance(1.0, footprint, blocked, house.grid.cell_size)
 
 
 def episode_rng(split: str, index: int) -> np.random.Generator:

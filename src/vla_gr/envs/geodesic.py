@@ -11,9 +11,20 @@ from vla_gr.geometry import GridSpec, geodesic_distance, inflate_obstacles
 ROBOT_RADIUS = 0.18
 
 
+def clearance_radius(robot_radius: float, cell_size: float) -> float:
+    """Inflation radius (m) that keeps a round robot clear of every occupied *cell*.
+
+    Occupancy marks cells whose centre lies inside an obstacle, so an obstacle's true edge
+    can reach half a cell beyond its outermost occupied centre; inflating by the radius
+    alone would declare gaps up to one cell narrower than the robot passable.
+    """
+    return robot_radius + 0.5 * cell_size
+
+
 def traversable_cells(house: House, robot_radius: float = ROBOT_RADIUS) -> np.ndarray:
-    """(H, W) bool: cells where the robot's centre fits (occupancy inflated by its radius)."""
-    return ~inflate_obstacles(house.occupancy, robot_radius, house.grid.cell_size)
+    """(H, W) bool: cells where the robot's centre fits (occupancy inflated by clearance)."""
+    radius = clearance_radius(robot_radius, house.grid.cell_size)
+    return ~inflate_obstacles(house.occupancy, radius, house.grid.cell_size)
 
 
 def goal_distance_field(
@@ -33,7 +44,8 @@ def goal_distance_field(
     # Inflate every obstacle except the goal itself: the ring within the robot radius of the
     # goal is where the front leaves the footprint, so it must stay open.
     others = house.occupancy & ~footprint  # (H, W)
-    blocked = inflate_obstacles(others, robot_radius, house.grid.cell_size)  # (H, W)
+    radius = clearance_radius(robot_radius, house.grid.cell_size)
+    blocked = inflate_obstacles(others, radius, house.grid.cell_size)  # (H, W)
     return geodesic_distance(1.0, footprint, blocked & ~footprint, house.grid.cell_size)
 
 

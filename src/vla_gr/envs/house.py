@@ -23,13 +23,13 @@ from vla_gr.envs.floorplan import (
     wall_boxes,
 )
 from vla_gr.envs.furniture import collision_geom, object_geoms
+from vla_gr.envs.geodesic import ROBOT_RADIUS, traversable_cells
 from vla_gr.envs.placement import Placed, place_furniture
 from vla_gr.envs.scene import Door, House, ObjectInstance, Room
-from vla_gr.geometry import GridSpec, disk_kernel, inflate_obstacles
+from vla_gr.geometry import GridSpec, disk_kernel
 
 logger = logging.getLogger(__name__)
 
-ROBOT_RADIUS = 0.18
 SPLITS: dict[str, int] = {"train": 0, "val": 1_000_000, "test": 2_000_000}
 SPLIT_SIZE = 1_000_000
 GRID_MARGIN = 0.5
@@ -168,7 +168,7 @@ def unreachable_problems(
     """(pockets, unreachable ids): traversable components besides the largest, and objects
     whose footprint no cell of the largest component touches (centre within radius + 1.5 cells).
     """
-    free = ~inflate_obstacles(house.occupancy, robot_radius, house.grid.cell_size)  # (H, W)
+    free = traversable_cells(house, robot_radius)  # (H, W)
     labels, count = ndimage.label(free, structure=np.ones((3, 3), int))
     if count == 0:
         return [], [o.instance_id for o in house.objects]
