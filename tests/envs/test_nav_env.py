@@ -109,6 +109,9 @@ def test_depth_centre_pixel_reads_wall(env, room, x):
     obs, _ = run_room(env, room, room_spec(x, 1.0, 0.0))  # facing the east wall
     centre = obs["depth"][31:33, 31:33, 0]
     np.testing.assert_allclose(centre, EAST_WALL - x, atol=0.02)
+    rgb, depth = env.unwrapped.render_rgbd(128)  # GIF-size frames from the same camera
+    assert rgb.shape == (128, 128, 3) and depth.shape == (128, 128)
+    np.testing.assert_allclose(depth[63:65, 63:65], EAST_WALL - x, atol=0.02)
 
 
 def test_semantic_shows_goal_when_facing_it(env, room):
@@ -140,6 +143,10 @@ def test_pose_is_relative_to_start(env, room):
     np.testing.assert_allclose(obs["pose"][:2], expect, atol=0.03)
     assert info["path_length"] == pytest.approx(1.0, abs=0.03)
     assert info["collisions"] == 0
+    u = env.unwrapped
+    assert len(u.trajectory_world) == 26 and u.trajectory_world[0] == (1.0, 1.0)
+    np.testing.assert_allclose(u.trajectory_world[-1], u.robot_pose_world()[:2])
+    np.testing.assert_allclose(u.start_pose_world, [1.0, 1.0, math.pi / 2])
 
 
 def test_driving_into_wall_counts_collisions_and_stops(env, room):
@@ -253,6 +260,14 @@ def test_episodes_file_and_seed_selection(tmp_path):
     assert env.reset(seed=4)[1]["episode_id"] == "gen-1"  # modulo the file length
     obs, _ = env.reset(options={"episode": dataclasses.asdict(specs[0])})  # dicts work too
     assert obs["instruction"] == specs[0].instruction
+    env.close()
+
+
+def test_module_qualified_id_imports_the_package():
+    env = gym.make("vla_gr.envs:" + ENV_ID, image_size=32)
+    assert env.observation_space["rgb"].shape == (32, 32, 3)
+    assert env.unwrapped.max_linear_speed == 0.5 and env.unwrapped.max_angular_speed == 1.0
+    assert env.unwrapped.control_hz == 10.0 and env.unwrapped.success_distance == 1.0
     env.close()
 
 
