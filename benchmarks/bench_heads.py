@@ -7,8 +7,8 @@ Measures p50/p95 per decision for DDPM-100, DDIM-10, flow-10, flow-5 and the L1
 head (H=16, ~2 M parameter U-Net head), the dual system's S1 step and S2 step,
 and a transformer-denoiser flow-10 head as base / LoRA unmerged / LoRA merged.
 Every figure is the median over ``--repeats`` rounds of ``--iters`` timed calls;
-variants compared against each other (DDPM vs DDIM, base vs LoRA) are timed in
-interleaved rounds so that machine load hits them alike. One intra-op thread by
+variants compared against each other (DDPM vs DDIM, base vs LoRA) are timed
+interleaved call by call so that machine load hits them alike. One intra-op thread by
 default (``--threads``). Writes ``results/bench_heads.{json,md}``.
 """
 
@@ -65,15 +65,23 @@ def percentile(values: list[float], q: float) -> float:
 def bench_group(
     fns: dict[str, Callable[[], object]], iters: int, repeats: int, warmup: int
 ) -> dict[str, dict]:
-    """Interleaved rounds over ``fns``; per name the median over rounds of p50 and p95 (ms)."""
+    """Time ``fns`` interleaved call by call (rotating order) in ``repeats`` rounds.
+
+    Interleaving single calls makes load changes on a shared machine hit every
+    variant alike. Per name: the median over rounds of the round p50 and p95 (ms).
+    """
     for fn in fns.values():
         for _ in range(warmup):
             fn()
-    rounds: dict[str, list[list[float]]] = {k: [] for k in fns}
-    for r in range(repeats):
-        names = list(fns) if r % 2 == 0 else list(reversed(fns))  # no fixed order bias
+    names = list(fns)
+    rounds: dict[str, list[list[float]]] = {k: [] for k in names}
+    for _ in range(repeats):
+        times: dict[str, list[float]] = {k: [] for k in names}
+        for i in range(iters):
+            for name in names[i % len(names) :] + names[: i % len(names)]:
+                times[name] += time_calls(fns[name], 1)
         for name in names:
-            rounds[name].append(time_calls(fns[name], iters))
+            rounds[name].append(times[name])
     out = {}
     for name, rs in rounds.items():
         out[name] = {
@@ -225,7 +233,7 @@ def to_markdown(res: dict) -> str:
         f"{m['cpu']} ({m['cores']} cores), torch {m['torch']}, {m['threads']} intra-op thread(s); "
         f"load average at start {m['loadavg_start'][0]:.2f}, at end {m['loadavg_end'][0]:.2f}. "
         f"Median over {res['repeats']} rounds of {res['iters']} calls "
-        "(DDPM/DDIM: fewer calls, interleaved rounds).",
+        "(DDPM/DDIM: fewer calls); compared variants interleaved call by call.",
         "",
         "| what | params | p50 ms | p95 ms |",
         "|---|---:|---:|---:|",
@@ -237,8 +245,10 @@ def to_markdown(res: dict) -> str:
             f"| {name} (H={HORIZON}) | {params:,} | {t['p50_ms']:.2f} | {t['p95_ms']:.2f} |"
         )
     for name, t in d["timings"].items():
-        params = d["params"]["s1"] if name.startswith("S1") else d["params"]["s2"]
-        lines.append(f"| {name} | {params:,} | {t['p50_ms']:.2f} | {t['p95_ms']:.2f} |")
+        params = f"{d['params']['s1'] if name.startswith('S1') else d['params']['s2']:,}"
+        if "flow" in name:
+            params += f" + {h['params']['flow']:,}"
+        lines.append(f"| {name} | {params} | {t['p50_ms']:.2f} | {t['p95_ms']:.2f} |")
     base_params = lo["params_total"] - lo["params_trainable"]
     for name, t in lo["timings"].items():
         params = f"{base_params:,}"
