@@ -262,9 +262,7 @@ class TransformerBlock(nn.Module):
             )
         hidden = int(dim * mlp_ratio)
         self.norm3 = nn.LayerNorm(dim)
-        self.mlp = nn.Sequential(
-            nn.Linear(dim, hidden), nn.GELU(approximate="tanh"), nn.Linear(hidden, dim)
-        )
+        self.mlp = nn.Sequential(nn.Linear(dim, hidden), nn.GELU(), nn.Linear(hidden, dim))
         self.drop = nn.Dropout(dropout) if dropout > 0 else nn.Identity()
 
     def forward(
@@ -441,4 +439,3 @@ class TrajectoryEncoder(nn.Module):
             else:
                 x = block(x, ctx, context_padding_mask, causal)  # (B, K, D)
         return x
-
