@@ -289,3 +289,29 @@ def test_merge_peft_unwraps_a_peft_model():
     assert type(plain) is TinyMLP and isinstance(plain.fc1, nn.Linear)
     with torch.no_grad():
         torch.testing.assert_close(plain(x), expected, rtol=0, atol=1e-5)
+
+
+@pytest.mark.parametrize("method", ["lora", "oft"])
+def test_trajectory_encoder_adapters_are_live_and_merge_exactly(method):
+    from vla_gr.core.trajectory_attention import TrajectoryEncoder
+
+    torch.manual_seed(0)
+    enc = TrajectoryEncoder(action_dim=3, hidden_dim=32, num_layers=2, num_action_queries=8).eval()
+    base = copy.deepcopy(enc)
+    ctx = torch.randn(2, 5, 32)  # (B, T, C)
+    targets = ["q_proj", "k_proj", "v_proj", "out_proj"]
+    if method == "lora":
+        apply_lora_to_model(enc, targets, rank=4, alpha=8)
+    else:
+        apply_oft_to_model(enc, targets, rank=8)
+    with torch.no_grad():
+        torch.testing.assert_close(
+            enc(context=ctx, num_actions=8), base(context=ctx, num_actions=8)
+        )
+        for p in enc.parameters():  # perturb every adapter weight
+            if p.requires_grad:
+                p.normal_(0.0, 0.1)
+        adapted = enc(context=ctx, num_actions=8)  # (B, 8, 3)
+        assert (adapted - base(context=ctx, num_actions=8)).abs().max() > 1e-3
+        merged = merge_peft(enc)
+        torch.testing.assert_close(merged(context=ctx, num_actions=8), adapted, rtol=0, atol=1e-5)
