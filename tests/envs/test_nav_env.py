@@ -251,6 +251,21 @@ def test_scene_cache_reuses_compiled_model(room):
     env.close()
 
 
+def test_cached_scenes_render_like_fresh_ones(room):
+    """Several compiled scenes share one GL context; switching back gives the same frame."""
+    spec = house_specs(1)[0]
+    env = gym.make(ENV_ID, semantic=True)
+    first, _ = env.reset(options={"episode": spec})
+    model = env.unwrapped._scene.model
+    run_room(env, room, room_spec(1.0, 1.0, 0.0))
+    env.unwrapped.render_rgbd(96)
+    again, _ = env.reset(options={"episode": spec})
+    assert env.unwrapped._scene.model is model  # a cache hit, no recompile
+    for key in ("rgb", "depth", "semantic"):
+        assert first[key].tobytes() == again[key].tobytes(), key
+    env.close()
+
+
 def test_episodes_file_and_seed_selection(tmp_path):
     specs = house_specs(3)
     path = save_episodes(tmp_path / "eps.jsonl", specs)

@@ -132,6 +132,7 @@ class RGBDRenderer:
             mujoco.mjtCatBit.mjCAT_ALL,
             self._scene,
         )
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._con)
         mujoco.mjr_render(self._rect, self._scene, self._con)
         mujoco.mjr_readPixels(self._rgb, self._depth, self._rect, self._con)
         rgb = self._rgb[::-1].copy()  # (H, W, 3) image rows top to bottom
@@ -149,6 +150,7 @@ class RGBDRenderer:
         flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = 1
         flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = 1
         try:
+            mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._con)
             mujoco.mjr_render(self._rect, self._scene, self._con)
             mujoco.mjr_readPixels(self._rgb, None, self._rect, self._con)
         finally:
