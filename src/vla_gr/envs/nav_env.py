@@ -213,6 +213,7 @@ class ObjectNavEnv(gym.Env):
         self.action_space = gym.spaces.Box(-1.0, 1.0, (3,), np.float32)
 
         self._scenes: OrderedDict[tuple, _Scene] = OrderedDict()
+        self._fresh_house: tuple[tuple, House] | None = None
         self._gl = None  # made on first render, so that constructing an env is cheap and fork-safe
         self._scene: _Scene | None = None
         self._measures = EpisodeMeasures(self.success_distance)
@@ -352,23 +353,25 @@ class ObjectNavEnv(gym.Env):
         self._episode_index = index
         if self.episode_list is not None:
             return self.episode_list[index % len(self.episode_list)], house
-        cached = self._cached_house(index)
+        house_here = self._split_house(index)
         spec = sample_episode(
-            self.split, index, self.num_rooms, self.clutter, self.episodes_per_scene, cached
+            self.split, index, self.num_rooms, self.clutter, self.episodes_per_scene, house_here
         )
         return spec, house
 
-    def _cached_house(self, index: int) -> House | None:
-        """The house of split episode ``index`` if its scene is cached (skips regeneration)."""
+    def _split_house(self, index: int) -> House:
+        """The house of split episode ``index``: from the scene cache, else generated once."""
         from vla_gr.envs.episodes import scene_seed_for
+        from vla_gr.envs.house import generate_house
 
-        key = (
-            scene_seed_for(self.split, index, self.episodes_per_scene),
-            self.num_rooms,
-            self.clutter,
-        )
+        seed = scene_seed_for(self.split, index, self.episodes_per_scene)
+        key = (seed, self.num_rooms, self.clutter)
         scene = self._scenes.get(key)
-        return None if scene is None else scene.house
+        if scene is not None:
+            return scene.house
+        house = generate_house(seed, num_rooms=self.num_rooms, clutter=self.clutter)
+        self._fresh_house = (key, house)  # picked up by _load_scene: no second generation
+        return house
 
     def _load_scene(self, spec: EpisodeSpec, house: House | None) -> _Scene:
         key = ("custom", id(house)) if house is not None else spec.scene_key
@@ -376,10 +379,13 @@ class ObjectNavEnv(gym.Env):
         if scene is not None:
             self._scenes.move_to_end(key)
             return scene
+        if house is None and self._fresh_house is not None and self._fresh_house[0] == key:
+            house = self._fresh_house[1]
         if house is None:
             from vla_gr.envs.house import generate_house
 
             house = generate_house(spec.scene_seed, num_rooms=spec.num_rooms, clutter=spec.clutter)
+        self._fresh_house = None
         scene = compile_scene(house, self.image_size, self.control_hz, self.max_depth)
         self._scenes[key] = scene
         while len(self._scenes) > self.scene_cache_size:
