@@ -101,8 +101,7 @@ class FastConv1d(nn.Conv1d):
             return super().forward(x)
         xp = F.pad(x, (p, p)) if p else x  # (B, C, L + 2p)
         cols = xp.unfold(2, k, s).permute(0, 2, 1, 3).reshape(B * L_out, C * k)  # (B*Lo, C*k)
-        w = self.weight.view(self.out_channels, C * k)  # (C_out, C*k)
-        y = cols @ w.t() if self.bias is None else torch.addmm(self.bias, cols, w.t())
+        y = F.linear(cols, self.weight.view(self.out_channels, C * k), self.bias)  # (B*Lo, Co)
         return y.view(B, L_out, self.out_channels).transpose(1, 2)  # (B, C_out, Lo)
 
 
@@ -168,18 +167,22 @@ class ConditionalResidualBlock1D(nn.Module):
         self.cond_encoder = nn.Sequential(nn.Mish(), nn.Linear(cond_dim, 2 * out_ch))
         self.residual = FastConv1d(in_ch, out_ch, 1) if in_ch != out_ch else nn.Identity()
 
-    def forward(self, x: torch.Tensor, film: torch.Tensor) -> torch.Tensor:
+    def film(self, cond: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """FiLM ``(scale, bias)``, each ``(M, out_ch, 1)``, from ``cond (M, cond_dim)``."""
+        f = self.cond_encoder(cond).unflatten(-1, (2, self.out_ch)).unsqueeze(-1)  # (M,2,o,1)
+        return f[:, 0], f[:, 1]
+
+    def forward(self, x: torch.Tensor, scale: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
         """Apply the block.
 
         Args:
             x: ``(B, in_ch, H)``.
-            film: ``(B, 2 * out_ch)`` FiLM parameters from ``cond_encoder(cond)``.
+            scale: ``(B, out_ch, 1)`` FiLM scale (from :meth:`film`).
+            bias: ``(B, out_ch, 1)`` FiLM bias.
 
         Returns:
             ``(B, out_ch, H)``.
         """
-        film = film.unsqueeze(-1)  # (B, 2*out, 1)
-        scale, bias = film[:, : self.out_ch], film[:, self.out_ch :]  # (B, out, 1) each
         h = torch.addcmul(bias, self.block1(x), scale)  # (B, out, H) = scale * h + bias
         return self.block2(h) + self.residual(x)  # (B, out, H)
 
@@ -263,9 +266,9 @@ class ConditionalUnet1D(nn.Module):
         """Pool ``(B, S, C)`` context tokens to the global FiLM condition ``(B, C)``."""
         return {"global": masked_mean(context, padding_mask)}  # (B, C)
 
-    def _films(self, cond: torch.Tensor) -> list[torch.Tensor]:
-        """FiLM parameters ``[(M, 2 * out_ch)]`` of every block from ``cond (M, E + C)``."""
-        return [blk.cond_encoder(cond) for blk in self._res_blocks]
+    def _films(self, cond: torch.Tensor) -> list[tuple[torch.Tensor, torch.Tensor]]:
+        """FiLM ``(scale, bias)`` ``(M, out_ch, 1)`` of every block from ``cond (M, E + C)``."""
+        return [blk.film(cond) for blk in self._res_blocks]
 
     def step_conditions(
         self, time_embs: torch.Tensor, prepared: dict[str, torch.Tensor]
@@ -277,27 +280,36 @@ class ConditionalUnet1D(nn.Module):
             prepared: output of :meth:`prepare_context` (``global``: ``(B, C)``).
 
         Returns:
-            ``N`` lists (one per step) of ``(B, 2 * out_ch)`` tensors, for :meth:`denoise_step`.
+            ``N`` lists (one per step) of per-block FiLM ``(scale, bias)``, each
+            ``(B, out_ch, 1)``, for :meth:`denoise_step`.
         """
         g = prepared["global"]  # (B, C)
         N, B = time_embs.shape[0], g.shape[0]
         cond = torch.cat(
             (time_embs[:, None].expand(N, B, -1), g[None].expand(N, B, -1)), dim=-1
         )  # (N, B, E + C)
-        films = [f.view(N, B, -1) for f in self._films(cond.reshape(N * B, -1))]  # (N, B, 2o)
-        return [[f[i] for f in films] for i in range(N)]
+        per_block = []
+        for scale, bias in self._films(cond.reshape(N * B, -1)):  # (N*B, o, 1) each
+            # One unbind per tensor here saves slicing ops inside every sampling step.
+            per_block.append(
+                (scale.unflatten(0, (N, B)).unbind(0), bias.unflatten(0, (N, B)).unbind(0))
+            )
+        return [[(s[i], b[i]) for s, b in per_block] for i in range(N)]
 
-    def _block(self, blk: nn.Module, x: torch.Tensor, film: torch.Tensor) -> torch.Tensor:
+    def _block(
+        self, blk: nn.Module, x: torch.Tensor, film: tuple[torch.Tensor, torch.Tensor]
+    ) -> torch.Tensor:
         if self.gradient_checkpointing and self.training and torch.is_grad_enabled():
-            return checkpoint(blk, x, film, use_reentrant=False)
-        return blk(x, film)
+            return checkpoint(blk, x, *film, use_reentrant=False)
+        return blk(x, *film)
 
     def denoise_step(self, x: torch.Tensor, films: list[torch.Tensor]) -> torch.Tensor:
         """Run the U-Net with precomputed FiLM parameters.
 
         Args:
             x: ``(B, H, A)`` noisy actions.
-            films: per-block ``(B, 2 * out_ch)`` (or ``(1, ...)``) from :meth:`step_conditions`.
+            films: per-block FiLM ``(scale, bias)``, each ``(B, out_ch, 1)`` (see
+                :meth:`step_conditions`).
 
         Returns:
             ``(B, H, A)``.
