@@ -278,6 +278,16 @@ def test_episodes_file_and_seed_selection(tmp_path):
     env.close()
 
 
+@pytest.mark.filterwarnings("ignore:.*infinity")  # pose is unbounded, like Habitat's GPS
+def test_gymnasium_env_checker_passes():
+    pytest.importorskip("vla_gr.envs.instructions")
+    from gymnasium.utils.env_checker import check_env
+
+    env = gym.make(ENV_ID)
+    check_env(env.unwrapped, skip_render_check=True)  # incl. reset(seed) determinism
+    env.close()
+
+
 def test_module_qualified_id_imports_the_package():
     env = gym.make("vla_gr.envs:" + ENV_ID, image_size=32)
     assert env.observation_space["rgb"].shape == (32, 32, 3)
