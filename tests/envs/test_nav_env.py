@@ -188,15 +188,15 @@ def test_action_validation(env, room):
 
 def test_stop_success_iff_within_success_distance(env, room):
     run_room(env, room, room_spec(4.0, 2.0, 0.0))  # 0.75 m from the chair's footprint
-    _, _, term, trunc, info = env.step(np.array([0.0, 0.0, 1.0], np.float32))
-    assert term and not trunc
+    _, reward, term, trunc, info = env.step(np.array([0.0, 0.0, 1.0], np.float32))
+    assert term and not trunc and reward == 1.0
     assert info["success"] == 1.0 and info["spl"] == pytest.approx(1.0)
     assert info["distance_to_goal"] == pytest.approx(0.75, abs=0.06)
     with pytest.raises(RuntimeError, match="reset"):
         env.step(np.zeros(3, np.float32))
     run_room(env, room, room_spec(2.5, 2.0, 0.0))  # 2.25 m away: STOP fails
-    _, _, term, _, info = env.step(np.array([0.0, 0.0, 0.5], np.float32))
-    assert term and info["success"] == 0.0 and info["spl"] == 0.0
+    _, reward, term, _, info = env.step(np.array([0.0, 0.0, 0.5], np.float32))
+    assert term and info["success"] == 0.0 and info["spl"] == 0.0 and reward == 0.0
 
 
 def test_truncation_is_a_failure(room):

@@ -6,6 +6,9 @@ start, ``instruction`` str, and ``semantic`` int32 (H, W) instance ids when aske
 Action: float32 (3,) in [-1, 1] = (linear fraction of 0.5 m/s, angular fraction of
 1.0 rad/s, stop); stop > 0 ends the episode as the agent's STOP.
 
+Reward: 1 for a successful STOP, else 0 (ObjectNav is judged by ``info``'s metrics,
+which also carries ``collided`` for the last step).
+
 Collision rule: a step is a collision when the base touched something during the step
 and moved less than half of the commanded distance (a blocked step; sliding along a wall
 at a shallow angle is not a collision).
@@ -293,13 +296,8 @@ class ObjectNavEnv(gym.Env):
         obs = self._observe()
         info = self._info()
         info["collided"] = bool(collided)
-        return (
-            obs,
-            0.0 if not (terminated and info["success"]) else 1.0,
-            terminated,
-            truncated,
-            info,
-        )
+        reward = float(terminated and info["success"] > 0)  # sparse: the metrics judge
+        return obs, reward, terminated, truncated, info
 
     def render(self):
         """The last RGB observation (H, W, 3) uint8 (``render_mode="rgb_array"``)."""
