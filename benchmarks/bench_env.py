@@ -183,7 +183,7 @@ def main(argv=None) -> int:
     parser.add_argument("--runs", type=int, default=5, help="timed runs per row (median)")
     parser.add_argument("--steps", type=int, default=1000, help="env steps per timed run")
     parser.add_argument("--expert-episodes", type=int, default=10)
-    parser.add_argument("--collect-episodes", type=int, default=8)
+    parser.add_argument("--collect-episodes", type=int, default=24)
     parser.add_argument("--sizes", type=int, nargs="+", default=[64, 128])
     parser.add_argument("--skip-collect", action="store_true")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT, help="output path stem")
