@@ -243,6 +243,10 @@ def main(argv=None) -> int:
         "Vector rows count env steps (2 per vector step). Async workers are separate "
         "processes, so on 2 cores they can exceed one process; sync runs both envs in one."
     )
+    notes.append(
+        "Timed runs cross episode ends (autoreset at max_episode_steps=1000), so successive "
+        "runs render different houses: their spread is mostly scene complexity, not noise."
+    )
     import mujoco
 
     result = {
