@@ -245,7 +245,8 @@ def main(argv=None) -> int:
     )
     notes.append(
         "Timed runs cross episode ends (autoreset at max_episode_steps=1000), so successive "
-        "runs render different houses: their spread is mostly scene complexity, not noise."
+        "runs are other episodes (start poses, houses): their spread is mostly what is in "
+        "view, not noise."
     )
     import mujoco
 
