@@ -8,6 +8,13 @@ Heavier names (the env class, the expert, episode helpers) load lazily on first 
 from __future__ import annotations
 
 import importlib
+import os
+
+# Headless by default: without a display MuJoCo's default (GLFW) cannot open a context.
+# Must happen before mujoco is first imported; an explicit MUJOCO_GL always wins.
+if "MUJOCO_GL" not in os.environ and not os.environ.get("DISPLAY"):
+    os.environ["MUJOCO_GL"] = "egl"
+    os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
 
 from gymnasium.envs.registration import register, registry
 

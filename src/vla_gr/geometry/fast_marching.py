@@ -2,23 +2,21 @@
 
 from __future__ import annotations
 
-from typing import TypeVar
+import sys
 
 import numpy as np
 import skfmm
 
-ArrayLike = TypeVar("ArrayLike")
-
 
 def _to_numpy(x) -> tuple[np.ndarray, object]:
-    """Return (numpy array, torch template or None) so results go back as the input kind."""
-    try:
-        import torch
+    """Return (numpy array, torch template or None) so results go back as the input kind.
 
-        if isinstance(x, torch.Tensor):
-            return x.detach().cpu().numpy(), x
-    except ImportError:  # pragma: no cover - torch is a hard dependency
-        pass
+    torch is only consulted when already imported (a tensor cannot exist otherwise), so
+    numpy-only callers such as the simulator's workers never pay for importing it.
+    """
+    torch = sys.modules.get("torch")
+    if torch is not None and isinstance(x, torch.Tensor):
+        return x.detach().cpu().numpy(), x
     return np.asarray(x), None
 
 
