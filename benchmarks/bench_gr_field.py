@@ -72,7 +72,7 @@ def bench_size(size: int, cell: float, image: int, repeats: int, margin: float) 
         for p in poses
     ]
     goal = torch.zeros(1, image, image)
-    goal[0, image // 4 : image // 3, : image // 8] = 1.0
+    goal[0, : image // 2, : image // 8] = 1.0  # a strip of wall, floor to ceiling
     full: list[float] = []
     parts: dict[str, list[float]] = {}
     windows: list[int] = []

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import torch
 
-from vla_gr.core.field_map import FREE_HITS, GOAL_MAX, OCC_HITS, POINT_HITS
+from vla_gr.core.field_map import FREE_HITS, GOAL_SUM, OCC_HITS, POINT_HITS
 from vla_gr.core.gr_field import FEATURE_NAMES, GRField, GRFieldConfig
-from vla_gr.geometry.camera import intrinsics_from_hfov
+from vla_gr.geometry.camera import ego_to_world, intrinsics_from_hfov
 
 HFOV, CAM_H, N = 79.0, 0.88, 64
 ROOM = (-2.0, 3.0, -1.7, 2.3)  # x0, x1, y0, y1 of a box room around the start (m)
@@ -122,11 +122,9 @@ def test_all_obstacle_map_and_unreachable_sources_give_explicit_no_path():
     r = np.hypot(x, y).reshape(64, 64)
     field.map_state[0, FREE_HITS][torch.from_numpy(r < 1.0)] = 1.0  # fully seen inside a ring
     field.map_state[0, OCC_HITS][torch.from_numpy(np.abs(r - 1.1) < 0.15)] = 1.0
-    goal = torch.zeros(1, N, N)
-    goal[0, 20:30, 40:50] = 1.0  # the goal is seen on the far wall, outside the ring
     out = field.update(nothing)
     assert not out.has_path.any() and not out.goal_seen.any()
-    field.map_state[0, GOAL_MAX, 10, 10] = 1.0
+    field.map_state[0, GOAL_SUM, 10, 10] = 1.0
     field.map_state[0, POINT_HITS, 10, 10] = 1.0
     out = field.update(nothing)
     assert not out.has_path.any() and torch.all(out.waypoints == 0)
@@ -137,7 +135,7 @@ def test_seen_goal_gives_a_geodesic_towards_it_with_even_spacing():
     field = GRField(cfg)
     pose = (0.0, 0.0, 0.0)
     goal = torch.zeros(1, N, N)
-    goal[0, 14:24, 50:58] = 1.0  # on the x = 3 wall, to the right of the optical axis
+    goal[0, :30, 50:58] = 1.0  # a strip of the x = 3 wall, right of the optical axis
     out = field.update(obs_of(pose), goal)
     assert out.goal_seen.all() and out.has_path.all()
     wp = out.waypoints[0]  # (6, 2)
@@ -154,7 +152,7 @@ def test_outputs_are_equivariant_to_a_quarter_turn_of_the_world():
     x0, x1, y0, y1 = ROOM
     turned = (-y1, -y0, x0, x1)  # the room rotated by +90 deg about the start
     goal = torch.zeros(2, N, N)
-    goal[:, 14:24, 50:58] = 1.0
+    goal[:, :30, 50:58] = 1.0
     field = GRField()
     depth = np.stack(
         [box_room_depth((0.0, 0.0, 0.0), ROOM), box_room_depth((0.0, 0.0, math.pi / 2), turned)]
@@ -262,7 +260,7 @@ def test_rendered_walls_land_on_the_true_occupancy():
 
 def test_planning_window_matches_fast_marching_on_the_whole_map():
     goal = torch.zeros(1, N, N)
-    goal[0, 14:24, 50:58] = 1.0
+    goal[0, :30, 50:58] = 1.0
     obs = obs_of((0.3, -0.2, 0.4))
     windowed, whole = GRField(), GRField(planning_margin=100.0)
     out_w, out_f = windowed.update(obs, goal), whole.update(obs, goal)
@@ -272,3 +270,23 @@ def test_planning_window_matches_fast_marching_on_the_whole_map():
     torch.testing.assert_close(t_w, t_f, rtol=1e-4, atol=1e-4)
     torch.testing.assert_close(out_w.waypoints, out_f.waypoints, rtol=0, atol=1e-4)
     assert torch.isinf(windowed._last["travel"][0][~seen]).any()
+
+
+def test_unseen_goal_field_explores_towards_the_frontier():
+    field = GRField()
+    out = field.update(obs_of((0.0, 0.0, 0.0), room=(-5.0, 2.0, -20.0, 20.0)))
+    assert out.has_path.all() and not out.goal_seen.any()
+    last = field._last
+    frontier = last["frontier"][0]
+    assert frontier.any()
+    # descending T from the robot ends on a frontier cell, with T falling all the way
+    origin = torch.tensor([field.grid.origin_x, field.grid.origin_y])
+    pose = torch.zeros(1, 3)
+    pts = ego_to_world(out.waypoints, pose)[0] - origin  # (K, 2) from the grid corner
+    cells = torch.floor(pts / field.grid.cell_size).long()  # (K, 2) as (col, row)
+    t_path = last["travel"][0][cells[:, 1], cells[:, 0]]
+    assert torch.all(t_path[1:] <= t_path[:-1] + 1e-6)
+    assert frontier[cells[-1, 1], cells[-1, 0]] or t_path[-1] == 0
+    # the potential has its wells on the attracting (frontier) mass, not in the open
+    phi = last["phi_hat"][0]
+    assert float(phi[frontier].mean()) < float(phi[last["explored"][0] & ~frontier].mean())

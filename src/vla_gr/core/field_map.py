@@ -6,9 +6,10 @@ different poses simply add up:
 
 - ``OCC_HITS``: points inside the obstacle height band (floor + margin .. robot height);
 - ``FREE_HITS``: floor points, free-space ray samples and the robot's own footprint;
-- ``GOAL_MAX``: the highest goal likelihood of any point that landed in the cell (a max, so a
-  goal object that fills part of a wall column is not diluted by the pixels above it);
-- ``POINT_HITS``: number of points that landed in the cell.
+- ``GOAL_SUM``: sum of the goal likelihood of the points that landed in the cell;
+- ``POINT_HITS``: number of points that landed in the cell, so ``GOAL_SUM / POINT_HITS`` is
+  the mean goal likelihood of what was seen there (a cell shared by a thin wall and the goal
+  object in front of it is not all goal).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import torch
 
 from vla_gr.geometry.grid import GridSpec
 
-OCC_HITS, FREE_HITS, GOAL_MAX, POINT_HITS = range(4)
+OCC_HITS, FREE_HITS, GOAL_SUM, POINT_HITS = range(4)
 NUM_MAP_CHANNELS = 4
 
 
@@ -167,7 +168,7 @@ def update_map(
                 f"got {tuple(goal_likelihood.shape)}"
             )
         like = torch.nan_to_num(goal_likelihood.to(state.dtype), nan=0.0).clamp(0.0, 1.0)
-        _scatter(state, grid, xy, valid, GOAL_MAX, like, reduce="amax")
+        _scatter(state, grid, xy, valid, GOAL_SUM, like)
     if image_shape is not None:
         cam = pose[:, :2].to(state.dtype) if camera_xy is None else camera_xy.to(state.dtype)
         samples, mask = free_space_rays(
@@ -191,9 +192,9 @@ def map_layers(state: torch.Tensor, min_hits: float = 1.0) -> dict[str, torch.Te
 
     Returns:
         dict of (B, H, W) tensors: ``occupied`` (bool; obstacle evidence wins over free),
-        ``explored`` (bool), ``free`` (bool), ``goal`` (float max goal likelihood in [0, 1]).
+        ``explored`` (bool), ``free`` (bool), ``goal`` (float mean goal likelihood in [0, 1]).
     """
     occupied = state[:, OCC_HITS] >= min_hits  # (B, H, W)
     explored = occupied | (state[:, FREE_HITS] > 0) | (state[:, POINT_HITS] > 0)  # (B, H, W)
-    goal = state[:, GOAL_MAX]  # (B, H, W)
+    goal = state[:, GOAL_SUM] / state[:, POINT_HITS].clamp_min(1.0)  # (B, H, W)
     return {"occupied": occupied, "explored": explored, "free": explored & ~occupied, "goal": goal}

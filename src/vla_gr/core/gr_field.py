@@ -7,7 +7,8 @@ One :meth:`GRField.update` per planner tick:
    obstacles (negative density), ``rho`` (B, H, W);
 3. potential ``phi`` from the Poisson equation with free-space boundaries;
 4. conformal metric ``g = exp(2 psi) delta``, ``psi`` raised near obstacles and low in the
-   potential wells; Christoffel symbols on demand (:meth:`GRField.christoffel`);
+   wells of the attracting (goal + frontier) potential; Christoffel symbols on demand
+   (:meth:`GRField.christoffel`);
 5. geodesic distance ``T`` of that metric from the goal (or the frontier when no goal is seen)
    by fast marching with cost ``exp(psi)`` around the robot-inflated obstacles;
 6. outputs: egocentric heading-aligned features (B, C, h, w), the next waypoints of the
@@ -67,7 +68,7 @@ FEATURE_NAMES: tuple[str, ...] = (
     "grad_left",  # ... left component
     "occupied",
     "explored",
-    "goal",  # highest goal likelihood seen in the cell
+    "goal",  # mean goal likelihood of the points seen in the cell
     "frontier",
 )
 
@@ -86,7 +87,7 @@ class GRFieldConfig:
     floor_height: float = 0.1  # points below are floor
     robot_height: float = 1.2  # points above are ignored for occupancy
     robot_radius: float = 0.18
-    goal_threshold: float = 0.5  # max likelihood for a cell to count as goal
+    goal_threshold: float = 0.5  # mean likelihood for a cell to count as goal
     G: float = 1.0
     goal_mass: float = 1.0
     frontier_mass: float = 1.0
@@ -96,7 +97,7 @@ class GRFieldConfig:
     beta: float = 1.0  # weight of the potential in psi
     kappa: float = 2.0  # weight of obstacle proximity in psi
     obstacle_length: float = 0.3  # decay length (m) of the obstacle term
-    unknown_cost: float = 1.5  # extra cost factor of unexplored cells (optimistic planning)
+    unknown_cost: float = 2.0  # extra cost factor of unexplored cells (optimistic planning)
     ego_size: int = 64  # egocentric feature map side (cells)
     ego_cell_size: float | None = None  # defaults to cell_size
     num_waypoints: int = 8
@@ -268,24 +269,31 @@ class GRField(nn.Module):
         rho_goal = normalise_mass(layers["goal"] * goal_cells, cfg.goal_mass, h)  # (B, H, W)
         f_total = torch.where(goal_seen, cfg.frontier_mass_goal_seen, cfg.frontier_mass)
         rho_front = normalise_mass(frontier.float(), f_total[:, None, None], h)  # (B, H, W)
-        rho = rho_goal + rho_front - cfg.obstacle_density * occupied.float()  # (B, H, W)
+        rho_attr = rho_goal + rho_front  # (B, H, W) attracting mass
+        rho = rho_attr - cfg.obstacle_density * occupied.float()  # (B, H, W) all mass
         tick("masses")
-        phi = solve_poisson(rho, h, cfg.G)  # (B, H, W)
+        # one batched solve: the full potential (a feature) and the attracting part (metric)
+        phi, phi_attr = solve_poisson(torch.cat([rho, rho_attr]), h, cfg.G).split(len(rho))
         tick("poisson")
         proximity = obstacle_proximity(occupied, h, cfg.obstacle_length)  # (B, H, W)
-        psi = conformal_log_factor(phi, proximity, cfg.beta, cfg.kappa)  # (B, H, W)
+        psi = conformal_log_factor(phi_attr, proximity, cfg.beta, cfg.kappa)  # (B, H, W)
         cost = torch.exp(psi) * (1.0 + (cfg.unknown_cost - 1.0) * (~explored).float())
 
-        # goals sit on obstacles: the robot's centre reaches the free cells within its radius
-        k = math.ceil((cfg.robot_radius + h) / h)
-        halo = dilate_square(goal_cells, k)  # (B, H, W)
-        standoff = halo & ~occupied  # (B, H, W)
+        # goals sit on obstacles: the robot's centre reaches the free cells within its radius,
+        # grown from the goal one cell at a time so that the halo never crosses a wall
+        halo, passable = goal_cells, goal_cells | ~occupied  # (B, H, W)
+        for _ in range(math.ceil((cfg.robot_radius + h) / h)):
+            halo = dilate_square(halo, 1) & passable
+        standoff = halo & explored & ~occupied  # (B, H, W) seen free cells beside the goal
         has_standoff = standoff.flatten(1).any(dim=1)[:, None, None]  # (B, 1, 1)
         goal_src = torch.where(has_standoff, standoff, goal_cells)  # (B, H, W)
-        sources = torch.where(goal_seen[:, None, None], goal_src, frontier)  # (B, H, W)
+        goal_src = goal_src & goal_seen[:, None, None]  # (B, H, W)
         tick("metric")
-        travel, grads = self._travel(cost, occupied, explored, sources, robot_xy)
-        tick("fast_marching")  # travel (B, H, W), grads (B, 2, H, W)
+        # the goal if seen and reachable, else the frontier (explore until a way opens)
+        travel, grads, choice = self._travel(
+            cost, occupied, explored, [goal_src, frontier], robot_xy
+        )
+        tick("fast_marching")  # travel (B, H, W), grads (B, 2, H, W), choice (B,)
         waypoints, has_path, distance = self._waypoints(travel, grads, robot_xy, pose)
         tick("path")
         phi_hat = conformal_log_factor(phi, torch.zeros_like(phi), 1.0, 0.0)  # (B, H, W)
@@ -303,7 +311,7 @@ class GRField(nn.Module):
             "explored": explored, "frontier": frontier, "goal": goal_cells,
             "robot_xy": robot_xy, "yaw": pose[:, 2], "has_path": has_path,
         }  # fmt: skip
-        return GRFieldOutput(features, waypoints, has_path, goal_seen & has_path, distance)
+        return GRFieldOutput(features, waypoints, has_path, (choice == 0) & has_path, distance)
 
     def _stopwatch(self):
         """A callable ``tick(name)`` that stores the seconds since the previous tick as ``name``."""
@@ -325,44 +333,61 @@ class GRField(nn.Module):
         dy = cy[None, :, None] - xy[:, 1, None, None]  # (B, H, 1)
         return dx**2 + dy**2 <= radius**2  # (B, H, W)
 
-    def _travel(self, cost, occupied, explored, sources, robot_xy):
-        """Geodesic distance T (B, H, W) and its unit upwind gradient (B, 2, H, W).
+    def _travel(self, cost, occupied, explored, candidates, robot_xy):
+        """Geodesic distance T (B, H, W), its unit upwind gradient (B, 2, H, W) and the index
+        (B,) of the source set used (-1: none reaches the robot).
 
-        Fast marching runs on the bounding box of the explored cells grown by
-        ``planning_margin`` (sources and robot always lie inside it); T is inf outside.
+        ``candidates`` is a list of source masks (B, H, W) in order of preference (goal, then
+        frontier); the first one whose front reaches the robot's cell is used. Fast marching
+        runs on the bounding box of the explored cells grown by ``planning_margin`` (sources
+        and robot lie inside it); T is inf outside.
         """
         cfg, h = self.config, self.config.cell_size
+        B = cost.shape[0]
         xs, ys = self.grid.cell_centres()  # (H, W) each, map frame
         xs, ys = xs - self.grid.origin_x, ys - self.grid.origin_y
         travel = np.full(cost.shape, np.inf)
-        grads = np.zeros((cost.shape[0], 2, *cost.shape[1:]))
+        grads = np.zeros((B, 2, *cost.shape[1:]))
+        choice = np.full(B, -1)
         cost_np, occ_np = cost.detach().cpu().numpy(), occupied.cpu().numpy()
-        src_np, robot_np = sources.cpu().numpy(), robot_xy.detach().cpu().numpy()
-        seen_np = explored.cpu().numpy()
+        cand_np = [c.cpu().numpy() for c in candidates]
+        robot_np, seen_np = robot_xy.detach().cpu().numpy(), explored.cpu().numpy()
         pad = math.ceil(cfg.planning_margin / h)
-        self.planning_windows = [(0, 0)] * cost.shape[0]
-        for b in range(cost.shape[0]):
-            if not src_np[b].any():
+        self.planning_windows = [(0, 0)] * B
+        for b in range(B):
+            rows, cols = np.nonzero(seen_np[b] | np.any([c[b] for c in cand_np], axis=0))
+            if len(rows) == 0:
                 continue
-            rows, cols = np.nonzero(seen_np[b] | src_np[b])
             win = (
                 slice(max(rows.min() - pad, 0), rows.max() + pad + 1),
                 slice(max(cols.min() - pad, 0), cols.max() + pad + 1),
             )
-            occ, src = occ_np[b][win], src_np[b][win]  # (h', w') planning window
+            occ = occ_np[b][win]  # (h', w') planning window
             self.planning_windows[b] = occ.shape
-            blocked = inflate_obstacles(occ, cfg.robot_radius, h)  # (h', w')
+            inflated = inflate_obstacles(occ, cfg.robot_radius, h)  # (h', w')
             # the robot stands where it is: never block its own footprint unless truly occupied
             own = np.hypot(xs[win] - robot_np[b, 0], ys[win] - robot_np[b, 1])
-            blocked &= ~((own <= cfg.robot_radius + h) & ~occ)
-            blocked &= ~src
-            T = geodesic_distance(cost_np[b][win], src, blocked, h)  # (h', w')
-            gx, gy = upwind_gradient(T, h)
-            norm = np.maximum(np.hypot(gx, gy), 1e-12)
-            travel[b][win], grads[b, 0][win], grads[b, 1][win] = T, gx / norm, gy / norm
+            inflated &= ~((own <= cfg.robot_radius + h) & ~occ)
+            r, c = int(robot_np[b, 1] // h) - win[0].start, int(robot_np[b, 0] // h) - win[1].start
+            for i, sources in enumerate(cand_np):
+                src = sources[b][win]  # (h', w')
+                if not src.any():
+                    continue
+                if (src & ~inflated).any():  # prefer sources where the robot's centre fits
+                    src = src & ~inflated
+                T = geodesic_distance(cost_np[b][win], src, inflated & ~src, h)  # (h', w')
+                reached = 0 <= r < T.shape[0] and 0 <= c < T.shape[1] and np.isfinite(T[r, c])
+                if reached or not np.isfinite(travel[b]).any():
+                    gx, gy = upwind_gradient(T, h)
+                    norm = np.maximum(np.hypot(gx, gy), 1e-12)
+                    travel[b][win], grads[b, 0][win], grads[b, 1][win] = T, gx / norm, gy / norm
+                if reached:
+                    choice[b] = i
+                    break
         return (
             torch.from_numpy(travel).float().to(cost.device),
             torch.from_numpy(grads).float().to(cost.device),
+            torch.from_numpy(choice).to(cost.device),
         )
 
     def _waypoints(self, travel, grads, robot_xy, pose):
