@@ -282,7 +282,7 @@ def integrate_geodesic(
     v0: torch.Tensor,
     steps: int,
     dt: float,
-    cell_size: float,
+    cell_size: float = 1.0,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Integrate the geodesic equation x'' = -Gamma(x)(x', x') with classical RK4.
 
@@ -294,7 +294,8 @@ def integrate_geodesic(
         v0: (B, 2) start velocities.
         steps: number of RK4 steps (>= 1).
         dt: affine-parameter step.
-        cell_size: metres per cell.
+        cell_size: metres per cell of ``gamma``'s grid (use the value ``gamma`` was computed
+            with; positions are then in metres).
 
     Returns:
         positions (B, steps + 1, 2) and velocities (B, steps + 1, 2).

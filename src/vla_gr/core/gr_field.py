@@ -419,6 +419,8 @@ class GRField(nn.Module):
             has_path[b] = True
             r0, c0 = np.floor(robot_np[b][::-1] / h).astype(int)
             distance[b] = float(T_np[b][r0, c0])
+        if not has_path.all():
+            logger.debug("GR field: no path for batch elements %s", (~has_path).nonzero().flatten())
         origin = torch.tensor([self.grid.origin_x, self.grid.origin_y])
         ego = world_to_ego((out + origin).to(pose.device), pose)  # (B, K, 2)
         ego = torch.where(has_path.to(pose.device)[:, None, None], ego, 0.0)
