@@ -251,3 +251,14 @@ def test_path_with_precomputed_gradient_is_identical():
     a = extract_path(T, start, 0.1)
     b = extract_path(T, start, 0.1, gradient=upwind_gradient(T, 0.1))
     np.testing.assert_allclose(a, b)
+
+
+def test_geodesic_endpoint_is_differentiable_in_psi():
+    psi, _ = smooth_psi(40, 0.1)
+    psi = psi.clone().requires_grad_(True)
+    gamma = christoffel_conformal(psi, 0.1)
+    x0 = torch.tensor([[1.0, 2.0]], dtype=torch.float64)
+    v0 = torch.tensor([[1.0, 0.2]], dtype=torch.float64)
+    xs, _ = integrate_geodesic(gamma, x0, v0, steps=20, dt=0.05, cell_size=0.1)
+    xs[0, -1, 1].backward()
+    assert torch.isfinite(psi.grad).all() and psi.grad.abs().sum() > 0

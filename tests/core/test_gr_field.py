@@ -43,7 +43,7 @@ def test_wall_at_known_distance_lands_in_the_analytic_cells():
     D = 2.0  # a fronto-parallel wall ahead; the room is wide enough that only it is seen
     field = GRField(map_size=128, cell_size=0.15)
     out = field.update(obs_of((0.0, 0.0, 0.0), room=(-5.0, D, -20.0, 20.0)))
-    occ = field._last["occupied"][0].numpy()
+    occ = field.last_maps["occupied"][0].numpy()
     K = intrinsics_from_hfov(N, N, HFOV)
     lateral = D * (K.cx - (np.arange(N) + 0.5)) / K.fx  # (N,) y of each column's wall point
     g = field.grid
@@ -52,7 +52,7 @@ def test_wall_at_known_distance_lands_in_the_analytic_cells():
     expected = np.zeros_like(occ)
     expected[rows, col] = True
     assert np.array_equal(occ, expected)
-    explored = field._last["explored"][0].numpy()
+    explored = field.last_maps["explored"][0].numpy()
     r0 = int(np.floor(-g.origin_y / g.cell_size))
     assert explored[r0, int(np.floor(-g.origin_x / g.cell_size)) : col].all()  # ray to the wall
     assert not explored[r0, col + 1 :].any()  # nothing seen behind it
@@ -71,13 +71,13 @@ def test_two_views_accumulate_additively_and_agree_on_their_overlap():
     fab.update(obs_of(pb))
     for ch in (OCC_HITS, FREE_HITS, POINT_HITS):
         torch.testing.assert_close(fab.map_state[:, ch], fa.map_state[:, ch] + fb.map_state[:, ch])
-    occ_a, occ_b = fa._last["occupied"][0].numpy(), fb._last["occupied"][0].numpy()
-    exp_a, exp_b = fa._last["explored"][0].numpy(), fb._last["explored"][0].numpy()
+    occ_a, occ_b = fa.last_maps["occupied"][0].numpy(), fb.last_maps["occupied"][0].numpy()
+    exp_a, exp_b = fa.last_maps["explored"][0].numpy(), fb.last_maps["explored"][0].numpy()
     both = exp_a & exp_b
     agree = (occ_a == occ_b)[both].mean()
     assert both.sum() > 100 and agree > 0.97
     # every occupied cell lies on a wall of the room (within one cell)
-    rows, cols = np.nonzero(fab._last["occupied"][0].numpy())
+    rows, cols = np.nonzero(fab.last_maps["occupied"][0].numpy())
     x, y = cell_xy(fab, rows, cols).T
     to_wall = np.minimum.reduce(
         [abs(x - ROOM[0]), abs(x - ROOM[1]), abs(y - ROOM[2]), abs(y - ROOM[3])]
@@ -100,7 +100,7 @@ def test_bad_depth_is_masked_and_never_propagated():
     out1 = f1.update({"depth": bad, "pose": obs["pose"]})
     f2.update({"depth": masked, "pose": obs["pose"]})
     assert torch.equal(f1.map_state, f2.map_state)
-    for t in (out1.features, out1.waypoints, f1._last["phi_hat"], f1._last["psi"]):
+    for t in (out1.features, out1.waypoints, f1.last_maps["phi_hat"], f1.last_maps["psi"]):
         assert not torch.isnan(t).any()
     assert out1.has_path.all() and ref.has_path.all()
 
@@ -235,7 +235,7 @@ def test_rendered_walls_land_on_the_true_occupancy():
         assert hit.any()
         true_d = float(t[inside][np.argmax(hit)])
         assert float(obs["depth"][32, 31:33].mean()) == pytest.approx(true_d, abs=0.1)
-        occ = field._last["occupied"][0].numpy()
+        occ = field.last_maps["occupied"][0].numpy()
         g = field.grid
         row = int(np.floor(-g.origin_y / g.cell_size))  # the map's x axis is the start heading
         first = np.argmax(occ[row, int(np.floor(-g.origin_x / g.cell_size)) :])
@@ -248,7 +248,7 @@ def test_rendered_walls_land_on_the_true_occupancy():
             field.update({"depth": obs["depth"][None], "pose": obs["pose"][None]})
         pose_err = np.asarray(world.robot_pose_world()) - start
         assert np.hypot(*pose_err[:2]) > 0.05  # it did move
-        rows, cols = np.nonzero(field._last["occupied"][0].numpy())
+        rows, cols = np.nonzero(field.last_maps["occupied"][0].numpy())
         wrc = hg.world_to_cell(_to_world(field, rows, cols, start))
         ok = hg.in_bounds(wrc)
         near = ndimage.binary_dilation(house.occupancy, iterations=3)  # 0.15 m tolerance
@@ -264,19 +264,19 @@ def test_planning_window_matches_fast_marching_on_the_whole_map():
     obs = obs_of((0.3, -0.2, 0.4))
     windowed, whole = GRField(), GRField(planning_margin=100.0)
     out_w, out_f = windowed.update(obs, goal), whole.update(obs, goal)
-    seen = windowed._last["explored"][0] & torch.isfinite(whole._last["travel"][0])
-    t_w, t_f = windowed._last["travel"][0][seen], whole._last["travel"][0][seen]
+    seen = windowed.last_maps["explored"][0] & torch.isfinite(whole.last_maps["travel"][0])
+    t_w, t_f = windowed.last_maps["travel"][0][seen], whole.last_maps["travel"][0][seen]
     assert seen.sum() > 200 and float(t_f.max()) > 3.0
     torch.testing.assert_close(t_w, t_f, rtol=1e-4, atol=1e-4)
     torch.testing.assert_close(out_w.waypoints, out_f.waypoints, rtol=0, atol=1e-4)
-    assert torch.isinf(windowed._last["travel"][0][~seen]).any()
+    assert torch.isinf(windowed.last_maps["travel"][0][~seen]).any()
 
 
 def test_unseen_goal_field_explores_towards_the_frontier():
     field = GRField()
     out = field.update(obs_of((0.0, 0.0, 0.0), room=(-5.0, 2.0, -20.0, 20.0)))
     assert out.has_path.all() and not out.goal_seen.any()
-    last = field._last
+    last = field.last_maps
     frontier = last["frontier"][0]
     assert frontier.any()
     # descending T from the robot ends on a frontier cell, with T falling all the way

@@ -457,6 +457,18 @@ class GRField(nn.Module):
 
     # ------------------------------------------------------------------ extras
 
+    @property
+    def last_maps(self) -> dict[str, torch.Tensor]:
+        """Allocentric layers of the last update, each (B, H, W) in the map grid.
+
+        ``phi_hat`` (potential in [0, 1]), ``psi``, ``travel`` (T, inf where unreachable),
+        ``occupied``, ``explored``, ``frontier``, ``goal`` (goal cells, bool); plus
+        ``robot_xy`` (B, 2) metres from the grid corner, ``yaw`` (B,), ``has_path`` (B,).
+        """
+        if self._last is None:
+            raise RuntimeError("GRField.last_maps needs a prior update()")
+        return self._last
+
     def christoffel(self) -> torch.Tensor:
         """Christoffel symbols (B, 2, 2, 2, H, W) of the last metric (call after update)."""
         if self._last is None:
