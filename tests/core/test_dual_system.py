@@ -292,3 +292,36 @@ def test_runner_surfaces_planner_exceptions():
             time.sleep(0.01)
     runner.stop()  # already surfaced: does not raise again
     assert not runner.running
+
+
+def test_subgoal_loss_and_shape_check():
+    model = small_model(num_subgoals=3).train()
+    args = (torch.randn(4, 16), torch.randn(4, 5, 12), torch.randn(4, 7), torch.randn(4, 7))
+    out = model.compute_loss(*args, subgoal_targets=torch.zeros(4, 3, model.goal_dim))
+    without = model.compute_loss(*args)
+    assert out["subgoal_loss"] > 0
+    torch.testing.assert_close(out["loss"] - out["subgoal_loss"], without["loss"])
+    with pytest.raises(ValueError, match="subgoal_targets"):
+        model.compute_loss(*args, subgoal_targets=torch.zeros(4, 2, model.goal_dim))
+
+
+def test_runner_reset_forgets_the_plan():
+    model = small_model()
+    with DualSystemRunner(model, planning_frequency_hz=20.0) as runner:
+        runner.set_planner_input(torch.randn(1, 4, 12))
+        runner.wait_for_plan()
+        runner.reset()
+        out = runner.step(torch.randn(1, 16), torch.randn(1, 7))
+    assert out["plan_index"] == 0
+
+
+def test_runner_reset_drops_a_plan_in_flight():
+    model = small_model()
+    model.s2 = _SlowPlanner(model.s2, delay_s=0.3)
+    with DualSystemRunner(model, planning_frequency_hz=2.0) as runner:
+        runner.set_planner_input(torch.randn(1, 4, 12))
+        time.sleep(0.1)  # the planner is now inside its 300 ms call
+        runner.reset()
+        time.sleep(0.4)  # ... and has finished it
+        assert runner.latest_plan() is None
+        assert runner.plan_times == []

@@ -315,3 +315,19 @@ def test_trajectory_encoder_adapters_are_live_and_merge_exactly(method):
         assert (adapted - base(context=ctx, num_actions=8)).abs().max() > 1e-3
         merged = merge_peft(enc)
         torch.testing.assert_close(merged(context=ctx, num_actions=8), adapted, rtol=0, atol=1e-5)
+
+
+def test_mixed_lora_and_bottleneck_round_trip(tmp_path):
+    model, base = make("mlp", None)
+    apply_lora_to_model(model, ["fc1"], rank=2, alpha=4)
+    apply_adapter_to_model(model, ["head"], bottleneck_dim=3)
+    trainable = {n for n, p in model.named_parameters() if p.requires_grad}
+    assert any("lora_" in n for n in trainable) and any("adapter_" in n for n in trainable)
+    x = inputs("mlp")
+    train(model, x)
+    restored = load_adapter(copy.deepcopy(base), save_adapter(model, tmp_path / "a.safetensors"))
+    with torch.no_grad():
+        torch.testing.assert_close(restored(x), model(x), rtol=0, atol=0)
+        merged = merge_peft(restored)
+        torch.testing.assert_close(merged(x), model(x), rtol=0, atol=1e-5)
+    assert isinstance(merged.fc1, nn.Linear) and isinstance(merged.head, BottleneckAdapter)

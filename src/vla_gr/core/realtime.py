@@ -98,6 +98,8 @@ class DualSystemRunner:
         self._inputs = LatestSlot()  # newest (vlm_features, vlm_mask)
         self._plans = LatestSlot()  # newest Plan
         self._input_ready = threading.Event()
+        self._epoch_lock = threading.Lock()  # orders reset() against plan publication
+        self._epoch = 0  # bumped by reset(); plans of an older epoch are dropped
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._error: BaseException | None = None
@@ -142,10 +144,15 @@ class DualSystemRunner:
         self.stop()
 
     def reset(self) -> None:
-        """Forget the published plan and planner input (new episode)."""
-        self._plans.put(None)
-        self._inputs.put(None)
-        self._input_ready.clear()
+        """Forget the published plan and planner input (new episode).
+
+        A plan being computed while this runs is discarded, never published.
+        """
+        with self._epoch_lock:
+            self._epoch += 1
+            self._plans.put(None)
+            self._inputs.put(None)
+            self._input_ready.clear()
 
     # ------------------------------------------------------------------ planner side
 
@@ -159,8 +166,9 @@ class DualSystemRunner:
             vlm_mask: optional (B, T) bool validity mask.
         """
         self.model._check_features("vlm_features", vlm_features, self.model.vlm_dim)
-        self._inputs.put((vlm_features.detach(), vlm_mask))
-        self._input_ready.set()
+        with self._epoch_lock:
+            self._inputs.put((self._epoch, vlm_features.detach(), vlm_mask))
+            self._input_ready.set()
 
     def _planner_loop(self) -> None:
         next_tick = time.perf_counter()
@@ -170,10 +178,12 @@ class DualSystemRunner:
                     next_tick = time.perf_counter()
                     continue
                 item, _ = self._inputs.get()
-                if item is None:
-                    self._input_ready.clear()
+                if item is None:  # after reset(): sleep until the next input
+                    with self._epoch_lock:
+                        if self._inputs.get()[0] is None:
+                            self._input_ready.clear()
                     continue
-                vlm_features, vlm_mask = item
+                epoch, vlm_features, vlm_mask = item
                 t0 = time.perf_counter()
                 with torch.inference_mode():  # grad mode is thread-local
                     out = self.model.plan(vlm_features, vlm_mask)
@@ -188,8 +198,11 @@ class DualSystemRunner:
                     latency_s=t1 - t0,
                     index=len(self.plan_times) + 1,
                 )
-                self._plans.put(plan)
-                self.plan_times.append(t1)
+                with self._epoch_lock:
+                    if epoch != self._epoch:  # reset() ran meanwhile: stale plan
+                        continue
+                    self._plans.put(plan)
+                    self.plan_times.append(t1)
                 next_tick += self.period_s
                 delay = next_tick - time.perf_counter()
                 if delay < 0:  # overran the period: re-anchor instead of bursting
