@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from vla_gr.core.field_map import FREE_HITS, GOAL_SUM, OCC_HITS, POINT_HITS
-from vla_gr.core.gr_field import FEATURE_NAMES, GRField, GRFieldConfig
+from vla_gr.core.gr_field import FEATURE_NAMES, GRField, GRFieldConfig, snap_start
 from vla_gr.geometry.camera import ego_to_world, intrinsics_from_hfov
 
 HFOV, CAM_H, N = 79.0, 0.88, 64
@@ -290,3 +290,27 @@ def test_unseen_goal_field_explores_towards_the_frontier():
     # the potential has its wells on the attracting (frontier) mass, not in the open
     phi = last["phi_hat"][0]
     assert float(phi[frontier].mean()) < float(phi[last["explored"][0] & ~frontier].mean())
+
+
+def test_snap_start_steps_out_of_the_inflated_margin():
+    T = np.full((10, 10), np.inf)
+    T[:, 6:] = 1.0  # reachable cells: columns 6.. (centres x >= 0.65 at 0.1 m cells)
+    here = np.array([0.68, 0.55])
+    np.testing.assert_allclose(snap_start(T, here, 0.1, 0.3), here)  # already reachable
+    np.testing.assert_allclose(snap_start(T, np.array([0.52, 0.55]), 0.1, 0.3), [0.65, 0.55])
+    assert snap_start(T, np.array([0.12, 0.55]), 0.1, 0.3) is None  # too far from any
+    assert snap_start(T, np.array([-5.0, 0.55]), 0.1, 0.3) is None  # off the grid
+
+
+def test_robot_next_to_a_wall_still_plans_away_from_it():
+    D = 0.25  # the base (radius 0.18) fits, but its centre is inside the inflated margin
+    field = GRField()
+    room = (-4.0, D, -3.0, 3.0)
+    field.update(obs_of((0.0, 0.0, math.pi), room=room))  # look back into the room first
+    out = field.update(obs_of((0.0, 0.0, 0.0), room=room))
+    travel = field.last_maps["travel"][0]
+    g = field.grid
+    assert torch.isinf(travel[int(-g.origin_y / g.cell_size), int(-g.origin_x / g.cell_size)])
+    assert out.has_path.all() and torch.isfinite(out.waypoints).all()
+    assert float(out.waypoints[0, :, 0].max()) <= 0.05  # never towards the wall
+    assert float(out.waypoints[0, -1].norm()) > 0.3

@@ -61,6 +61,31 @@ __all__ = [
 ]
 
 
+def snap_start(travel: np.ndarray, xy: np.ndarray, cell_size: float, radius: float):
+    """Where a path from metric point ``xy`` (2,) should start on ``travel`` (H, W).
+
+    ``xy`` itself when its cell is reachable (finite T); otherwise the centre of the nearest
+    reachable cell within ``radius`` metres (a robot standing in the inflated margin of an
+    obstacle first steps out of it); None when there is none.
+    """
+    H, W = travel.shape
+    r, c = int(np.floor(xy[1] / cell_size)), int(np.floor(xy[0] / cell_size))
+    if 0 <= r < H and 0 <= c < W and np.isfinite(travel[r, c]):
+        return np.asarray(xy, dtype=np.float64)
+    k = int(np.ceil(radius / cell_size)) + 1
+    r0, c0 = max(r - k, 0), max(c - k, 0)
+    window = travel[r0 : r + k + 1, c0 : c + k + 1]  # (<=2k+1, <=2k+1)
+    if window.size == 0:
+        return None
+    rows, cols = np.nonzero(np.isfinite(window))
+    centres = (np.stack([cols + c0, rows + r0], axis=-1) + 0.5) * cell_size  # (M, 2) x, y
+    if len(centres) == 0:
+        return None
+    dist = np.linalg.norm(centres - xy, axis=-1)  # (M,)
+    best = int(np.argmin(dist))
+    return centres[best] if dist[best] <= radius else None
+
+
 @dataclass
 class GRFieldOutput:
     """What one planner tick produces."""
@@ -267,8 +292,6 @@ class GRField(nn.Module):
         """
         cfg, h = self.config, self.config.cell_size
         B = cost.shape[0]
-        xs, ys = self.grid.cell_centres()  # (H, W) each, map frame
-        xs, ys = xs - self.grid.origin_x, ys - self.grid.origin_y
         travel = np.full(cost.shape, np.inf)
         grads = np.zeros((B, 2, *cost.shape[1:]))
         choice = np.full(B, -1)
@@ -287,11 +310,9 @@ class GRField(nn.Module):
             )
             occ = occ_np[b][win]  # (h', w') planning window
             self.planning_windows[b] = occ.shape
-            inflated = inflate_obstacles(occ, cfg.robot_radius, h)  # (h', w')
-            # the robot stands where it is: never block its own footprint unless truly occupied
-            own = np.hypot(xs[win] - robot_np[b, 0], ys[win] - robot_np[b, 1])
-            inflated &= ~((own <= cfg.robot_radius + h) & ~occ)
-            r, c = int(robot_np[b, 1] // h) - win[0].start, int(robot_np[b, 0] // h) - win[1].start
+            # an occupied cell may be filled up to its edge: clear its centre by radius + h / 2
+            inflated = inflate_obstacles(occ, cfg.robot_radius + 0.5 * h, h)  # (h', w')
+            corner = np.array([win[1].start, win[0].start]) * h  # window's corner, metres
             for i, sources in enumerate(cand_np):
                 src = sources[b][win]  # (h', w')
                 if not src.any():
@@ -299,7 +320,7 @@ class GRField(nn.Module):
                 if (src & ~inflated).any():  # prefer sources where the robot's centre fits
                     src = src & ~inflated
                 T = geodesic_distance(cost_np[b][win], src, inflated & ~src, h)  # (h', w')
-                reached = 0 <= r < T.shape[0] and 0 <= c < T.shape[1] and np.isfinite(T[r, c])
+                reached = snap_start(T, robot_np[b] - corner, h, self._snap_radius) is not None
                 if reached or not np.isfinite(travel[b]).any():
                     gx, gy = upwind_gradient(T, h)
                     norm = np.maximum(np.hypot(gx, gy), 1e-12)
@@ -324,12 +345,17 @@ class GRField(nn.Module):
         T_np, robot_np = travel.cpu().numpy(), robot_xy.detach().cpu().numpy()
         g_np = grads.cpu().numpy()  # (B, 2, H, W)
         for b in range(B):
+            start = snap_start(T_np[b], robot_np[b], h, self._snap_radius)
+            if start is None:
+                continue
             path = extract_path(
-                T_np[b], robot_np[b], h, cfg.path_step, max_length=K * ds + h,
+                T_np[b], start, h, cfg.path_step, max_length=K * ds + h,
                 gradient=(g_np[b, 0], g_np[b, 1]),
             )  # fmt: skip
             if len(path) == 0:
                 continue
+            if not np.allclose(start, robot_np[b]):  # leave the inflated zone first
+                path = np.concatenate([robot_np[b][None], path])
             seg = np.linalg.norm(np.diff(path, axis=0), axis=1)  # (N - 1,)
             arc = np.concatenate([[0.0], np.cumsum(seg)])  # (N,)
             r, c = np.floor(path[-1][::-1] / h).astype(int)
@@ -340,7 +366,7 @@ class GRField(nn.Module):
             pts = np.stack([np.interp(s, arc, path[:, 0]), np.interp(s, arc, path[:, 1])], -1)
             out[b] = torch.from_numpy(pts).float()  # (K, 2) metric from grid corner
             has_path[b] = True
-            r0, c0 = np.floor(robot_np[b][::-1] / h).astype(int)
+            r0, c0 = np.floor(start[::-1] / h).astype(int)
             distance[b] = float(T_np[b][r0, c0])
         if not has_path.all():
             logger.debug("GR field: no path for batch elements %s", (~has_path).nonzero().flatten())
@@ -379,6 +405,11 @@ class GRField(nn.Module):
         return feats  # (B, C, n, n)
 
     # ------------------------------------------------------------------ extras
+
+    @property
+    def _snap_radius(self) -> float:
+        """How far (m) the robot may be from a cell its centre fits in (mapping slack)."""
+        return self.config.robot_radius + 1.5 * self.config.cell_size
 
     @property
     def last_maps(self) -> dict[str, torch.Tensor]:
