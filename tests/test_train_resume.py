@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -15,6 +16,7 @@ from safetensors.torch import load_file
 
 from vla_gr import cli
 from vla_gr.configs import load_config
+from vla_gr.policy import VLAGRPolicy, make_fake_batch
 from vla_gr.train import train
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "src" / "vla_gr" / "configs"
@@ -28,6 +30,12 @@ def _overrides(tmp: Path, **extra) -> list[str]:
     }
     base.update(extra)
     return [f"{k}={v}" for k, v in base.items()]
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
 
 
 def _final_weights(run: Path) -> dict[str, torch.Tensor]:
@@ -90,6 +98,10 @@ def test_debug_preset_trains_and_resumes_through_the_cli(tmp_path):
     run = tmp_path / "runs" / "cli"
     assert (run / "config.yaml").is_file() and list((run / "tensorboard").glob("events.*"))
     assert (run / "checkpoints" / "best").resolve().name == "step_00000002"
+    policy = VLAGRPolicy.from_pretrained(run / "checkpoints" / "best")
+    saved = load_file(str(run / "checkpoints" / "best" / "model.safetensors"))
+    assert all(torch.equal(v, saved[k]) for k, v in policy.state_dict().items())
+    assert policy.predict_action_chunk(make_fake_batch(policy.config, 2)).shape == (2, 8, 3)
     resume = run / "checkpoints" / "latest"
     code = cli.main(
         [
@@ -119,6 +131,33 @@ def test_debug_preset_trains_and_resumes_through_the_cli(tmp_path):
     )
     assert code == 2
     assert (run / "checkpoints" / "latest").resolve().name == "step_00000003"
+
+
+@pytest.mark.slow
+def test_torchrun_two_cpu_processes_train_the_debug_preset(tmp_path):
+    """The same script under ``torchrun --nproc_per_node=2`` (gloo on CPU)."""
+    args = _overrides(tmp_path, **{"training.run_name": "ddp", "training.steps": 3})
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "torch.distributed.run",
+            "--nproc_per_node=2",
+            f"--master_port={_free_port()}",
+            "-m",
+            "vla_gr.train",
+            "--config-name",
+            "config_debug",
+            *args,
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    latest = tmp_path / "runs" / "ddp" / "checkpoints" / "latest"
+    state = json.loads((latest / "trainer_state.json").read_text())
+    assert state["world_size"] == 2 and state["step"] == 3 and len(state["rng"]) == 2
 
 
 @pytest.mark.parametrize("name", sorted(p.stem for p in CONFIG_DIR.glob("config_*.yaml")))

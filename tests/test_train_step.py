@@ -11,7 +11,7 @@ import torch
 from tests.train_helpers import fake_batch, split_batch, tiny_model_config, tiny_policy
 from vla_gr.train import train_step
 from vla_gr.training.ema import EMA, ema_decay
-from vla_gr.training.optim import build_optimizer, param_groups, warmup_cosine
+from vla_gr.training.optim import CPUOffloadAdamW, build_optimizer, param_groups, warmup_cosine
 
 
 def _step(model, micro, **kw):
@@ -112,3 +112,35 @@ def test_ema_matches_hand_computed_average():
     with ema.average_parameters(lin):
         assert torch.allclose(lin.weight, torch.full((1, 2), 3.5))
     assert torch.allclose(lin.weight, torch.full((1, 2), 5.0))  # restored
+
+
+def test_cpu_offload_adamw_matches_adamw_and_round_trips():
+    cfg = tiny_model_config()
+    a = tiny_policy(0)
+    b = copy.deepcopy(a)
+    opt_a = build_optimizer(a, lr=1e-2, weight_decay=0.1, fused=False)
+    opt_b = CPUOffloadAdamW(b, lr=1e-2, weight_decay=0.1)
+    for seed in range(3):
+        batch = [fake_batch(cfg, 4, seed=seed)]
+        train_step(a, batch, opt_a, grad_clip=1.0)
+        train_step(b, batch, opt_b, grad_clip=1.0)
+    for (name, pa), pb in zip(a.named_parameters(), b.parameters()):
+        torch.testing.assert_close(pa, pb, atol=1e-6, rtol=0, msg=name)
+    fresh = CPUOffloadAdamW(b, lr=1.0, weight_decay=0.0)
+    fresh.load_state_dict(opt_b.state_dict())
+    assert fresh.param_groups[0]["lr"] == pytest.approx(1e-2)
+
+
+def test_peft_lora_trains_only_adapters():
+    from vla_gr.configs.model_schema import PeftConfig
+    from vla_gr.policy import apply_peft
+
+    model = apply_peft(tiny_policy(0), PeftConfig(enabled=True, method="lora", lora_rank=2))
+    trainable = [n for n, p in model.named_parameters() if p.requires_grad]
+    assert trainable and all("lora_" in n for n in trainable)
+    frozen = {n: p.detach().clone() for n, p in model.named_parameters() if not p.requires_grad}
+    out = _step(model, [fake_batch(tiny_model_config(), 4)])
+    assert math.isfinite(out["loss"])
+    for n, p in model.named_parameters():
+        if n in frozen:
+            assert torch.equal(p, frozen[n]), n

@@ -33,7 +33,7 @@ from vla_gr.core.diffusion_policy import DiffusionPolicy
 from vla_gr.core.encoders import PoseEncoder, RGBDEncoder, build_text_encoder, pose_features
 from vla_gr.core.trajectory_attention import TransformerBlock
 
-__all__ = ["VLAGRPolicy", "make_fake_batch", "env_obs_to_frame"]
+__all__ = ["VLAGRPolicy", "apply_peft", "make_fake_batch", "env_obs_to_frame"]
 
 _OBS_KEYS = ("rgb", "depth", "pose")
 
@@ -85,6 +85,29 @@ class VLAGRPolicy(nn.Module):
         for name in c.freeze:
             getattr(self, name).requires_grad_(False)
         self.reset()
+
+    @classmethod
+    def from_pretrained(cls, path, device: torch.device | str = "cpu") -> VLAGRPolicy:
+        """Load a training checkpoint folder (``<run>/checkpoints/best``), verified.
+
+        The model config comes from the checkpoint's ``config.yaml`` (PEFT layers are
+        re-applied before the weights are loaded); the weights are ``model.safetensors``
+        (the EMA averages when training used EMA). Returned in eval mode.
+        """
+        from omegaconf import OmegaConf
+
+        from vla_gr.training.checkpoint import load_model_state, read_checkpoint
+
+        loaded = read_checkpoint(path)
+        saved = OmegaConf.create(loaded.config_yaml)
+        if "model" not in saved:
+            raise ValueError(f"checkpoint {path}: config.yaml has no model section")
+        schema = OmegaConf.structured(ModelConfig)
+        config = OmegaConf.to_object(OmegaConf.merge(schema, saved.model))
+        policy = cls(config)
+        apply_peft(policy, config.peft)
+        load_model_state(policy, loaded.model, str(path))
+        return policy.to(device).eval()
 
     # ------------------------------------------------------------------ normalisation
     def set_normalization(self, normalizers: Mapping) -> None:
@@ -210,6 +233,24 @@ class VLAGRPolicy(nn.Module):
             chunk = self.predict_action_chunk(history)  # (B, H, A)
             self._action_queue.extend(chunk[:, : self.config.n_action_steps].unbind(1))
         return self._action_queue.popleft()  # (B, A)
+
+
+def apply_peft(model: nn.Module, peft) -> nn.Module:
+    """Apply ``model.peft`` (a :class:`PeftConfig`) in place when enabled; returns ``model``."""
+    if not peft.enabled:
+        return model
+    from vla_gr.core import peft_modules
+
+    targets = list(peft.target_modules)
+    if peft.method == "lora":
+        peft_modules.apply_lora_to_model(
+            model, targets, peft.lora_rank, peft.lora_alpha, peft.lora_dropout
+        )
+    elif peft.method == "oft":
+        peft_modules.apply_oft_to_model(model, targets, peft.oft_rank)
+    else:
+        peft_modules.apply_adapter_to_model(model, targets, peft.adapter_bottleneck)
+    return model
 
 
 def env_obs_to_frame(obs: Mapping, device: torch.device | str = "cpu") -> dict:

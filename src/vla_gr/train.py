@@ -32,7 +32,7 @@ from torch.nn.parallel import DistributedDataParallel
 
 from vla_gr import __version__
 from vla_gr.configs.schema import VLAGRConfig
-from vla_gr.policy import VLAGRPolicy
+from vla_gr.policy import VLAGRPolicy, apply_peft
 from vla_gr.training import checkpoint as ckpt
 from vla_gr.training.data import build_datasets, build_loaders, prepare_store
 from vla_gr.training.distributed import (
@@ -167,18 +167,7 @@ def build_policy(cfg: VLAGRConfig, normalizers: Mapping | None = None) -> VLAGRP
         loaded = ckpt.read_checkpoint(cfg.training.init_from)
         ckpt.load_model_state(model, loaded.model, cfg.training.init_from)
         log.info("initialised weights from %s", cfg.training.init_from)
-    p = cfg.model.peft
-    if p.enabled:
-        from vla_gr.core import peft_modules as peft
-
-        if p.method == "lora":
-            peft.apply_lora_to_model(
-                model, p.target_modules, p.lora_rank, p.lora_alpha, p.lora_dropout
-            )
-        elif p.method == "oft":
-            peft.apply_oft_to_model(model, p.target_modules, p.oft_rank)
-        else:
-            peft.apply_adapter_to_model(model, p.target_modules, p.adapter_bottleneck)
+    apply_peft(model, cfg.model.peft)
     return model
 
 
@@ -234,6 +223,8 @@ def train(cfg: VLAGRConfig, resolved: DictConfig | None = None) -> dict:
 
 def _train(cfg: VLAGRConfig, resolved: DictConfig, dist: DistInfo) -> dict:
     t, device = cfg.training, dist.device
+    if not dist.is_main:  # logging on rank 0 only
+        logging.getLogger("vla_gr").setLevel(logging.WARNING)
     loaded = ckpt.read_checkpoint(t.resume) if t.resume else None  # verified before any work
     if loaded is not None:
         _check_resume_config(loaded, resolved)
@@ -287,12 +278,12 @@ def _train(cfg: VLAGRConfig, resolved: DictConfig, dist: DistInfo) -> dict:
     n_params = sum(p.numel() for p in model.parameters())
     n_train = sum(p.numel() for p in model.parameters() if p.requires_grad)
     log.info(
-        "run %s: %d windows (%d held out), %.2f M parameters (%.2f M trainable), device %s",
+        "run %s: %d windows (%d held out), %s parameters (%s trainable), device %s",
         run_dir,
         len(train_set),
         len(val_set) if val_set else 0,
-        n_params / 1e6,
-        n_train / 1e6,
+        f"{n_params:,}",
+        f"{n_train:,}",
         device,
     )
     samples_per_step = t.batch_size * t.grad_accum * dist.world_size
@@ -330,6 +321,7 @@ def _train(cfg: VLAGRConfig, resolved: DictConfig, dist: DistInfo) -> dict:
             if not math.isfinite(last["loss"]):
                 raise FloatingPointError(f"loss is {last['loss']} at step {step}")
             if step % t.log_every == 0 or step == t.steps:
+                last["loss"] = float(all_reduce_mean(torch.tensor(last["loss"], device=device)))
                 logger.log(
                     step,
                     {f"train/{k}": v for k, v in last.items()}
