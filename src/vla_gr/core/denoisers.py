@@ -21,6 +21,7 @@ what does not change across integration steps out of their loop:
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import torch
 import torch.nn.functional as F
@@ -28,6 +29,7 @@ from torch import nn
 from torch.utils.checkpoint import checkpoint
 
 from vla_gr.core.trajectory_attention import TransformerBlock
+from vla_gr.core.unet_inference import FastConv1d, FastConvTranspose1d, UnetStepPlan
 
 __all__ = [
     "DENOISERS",
@@ -76,59 +78,6 @@ def masked_mean(tokens: torch.Tensor, padding_mask: torch.Tensor | None = None) 
     return (tokens * keep).sum(1) / keep.sum(1).clamp_min(1.0)  # (B, C)
 
 
-# Below this many output rows (batch * length), a conv is one im2col matmul: PyTorch's
-# CPU conv1d falls back to a slow path for tiny batch-1 inputs (measured 400 us vs 80 us
-# for 256 channels at length 4), which dominates batch-1 sampling latency.
-# Small kernels (fewer weights than this) are faster in PyTorch's own conv.
-_MATMUL_MAX_ROWS = 64
-_MATMUL_MIN_WEIGHTS = 10_000
-
-
-class FastConv1d(nn.Conv1d):
-    """``nn.Conv1d`` (groups=1, dilation=1) computed as an im2col matmul for small inputs."""
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """``(B, C_in, L) -> (B, C_out, L_out)``."""
-        B, C, L = x.shape
-        k, s, p = self.kernel_size[0], self.stride[0], self.padding[0]
-        L_out = (L + 2 * p - k) // s + 1
-        if (
-            B * L_out > _MATMUL_MAX_ROWS
-            or self.in_channels * self.out_channels * k < _MATMUL_MIN_WEIGHTS
-            or self.groups != 1
-            or self.dilation[0] != 1
-        ):
-            return super().forward(x)
-        xp = F.pad(x, (p, p)) if p else x  # (B, C, L + 2p)
-        cols = xp.unfold(2, k, s).permute(0, 2, 1, 3).reshape(B * L_out, C * k)  # (B*Lo, C*k)
-        y = F.linear(cols, self.weight.view(self.out_channels, C * k), self.bias)  # (B*Lo, Co)
-        return y.view(B, L_out, self.out_channels).transpose(1, 2)  # (B, C_out, Lo)
-
-
-class FastConvTranspose1d(nn.ConvTranspose1d):
-    """``nn.ConvTranspose1d`` (groups=1) computed as matmul + col2im for small inputs."""
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """``(B, C_in, L) -> (B, C_out, (L - 1) * stride - 2 * padding + kernel)``."""
-        B, C, L = x.shape
-        k, s, p = self.kernel_size[0], self.stride[0], self.padding[0]
-        if (
-            B * L * s > _MATMUL_MAX_ROWS
-            or self.groups != 1
-            or self.dilation[0] != 1
-            or self.output_padding[0] != 0
-        ):
-            return super().forward(x)
-        w = self.weight.view(C, self.out_channels * k)  # (C_in, C_out*k)
-        cols = (x.transpose(1, 2).reshape(B * L, C) @ w).view(B, L, -1)  # (B, L, C_out*k)
-        full = (L - 1) * s + k
-        y = F.fold(
-            cols.transpose(1, 2), output_size=(1, full), kernel_size=(1, k), stride=(1, s)
-        )  # (B, C_out, 1, full)
-        y = y[:, :, 0, p : full - p]  # (B, C_out, L_out)
-        return y if self.bias is None else y + self.bias[:, None]
-
-
 class _Conv1dBlock(nn.Sequential):
     """Conv1d -> GroupNorm -> Mish on ``(B, C, H)``."""
 
@@ -167,9 +116,18 @@ class ConditionalResidualBlock1D(nn.Module):
         self.cond_encoder = nn.Sequential(nn.Mish(), nn.Linear(cond_dim, 2 * out_ch))
         self.residual = FastConv1d(in_ch, out_ch, 1) if in_ch != out_ch else nn.Identity()
 
-    def film(self, cond: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """FiLM ``(scale, bias)``, each ``(M, out_ch, 1)``, from ``cond (M, cond_dim)``."""
-        f = self.cond_encoder(cond).unflatten(-1, (2, self.out_ch)).unsqueeze(-1)  # (M,2,o,1)
+    def film(
+        self, cond: torch.Tensor, activated: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """FiLM ``(scale, bias)``, each ``(M, out_ch, 1)``, from ``cond (M, cond_dim)``.
+
+        ``activated`` may pass ``Mish(cond)`` (shared by all blocks) to skip recomputing it.
+        """
+        if activated is not None and type(self.cond_encoder[0]) is nn.Mish:
+            f = self.cond_encoder[1](activated)  # (M, 2 * o)
+        else:
+            f = self.cond_encoder(cond)  # (M, 2 * o)
+        f = f.reshape(-1, 2, self.out_ch, 1)  # (M, 2, o, 1)
         return f[:, 0], f[:, 1]
 
     def forward(self, x: torch.Tensor, scale: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
@@ -268,7 +226,8 @@ class ConditionalUnet1D(nn.Module):
 
     def _films(self, cond: torch.Tensor) -> list[tuple[torch.Tensor, torch.Tensor]]:
         """FiLM ``(scale, bias)`` ``(M, out_ch, 1)`` of every block from ``cond (M, E + C)``."""
-        return [blk.film(cond) for blk in self._res_blocks]
+        activated = F.mish(cond)  # (M, E + C), the first layer of every cond_encoder
+        return [blk.film(cond, activated) for blk in self._res_blocks]
 
     def step_conditions(
         self, time_embs: torch.Tensor, prepared: dict[str, torch.Tensor]
@@ -288,13 +247,12 @@ class ConditionalUnet1D(nn.Module):
         cond = torch.cat(
             (time_embs[:, None].expand(N, B, -1), g[None].expand(N, B, -1)), dim=-1
         )  # (N, B, E + C)
-        per_block = []
-        for scale, bias in self._films(cond.reshape(N * B, -1)):  # (N*B, o, 1) each
-            # One unbind per tensor here saves slicing ops inside every sampling step.
-            per_block.append(
-                (scale.unflatten(0, (N, B)).unbind(0), bias.unflatten(0, (N, B)).unbind(0))
-            )
-        return [[(s[i], b[i]) for s, b in per_block] for i in range(N)]
+        # One unbind per tensor here saves slicing ops inside every sampling step.
+        per_block = [
+            zip(scale.reshape(N, B, -1, 1).unbind(0), bias.reshape(N, B, -1, 1).unbind(0))
+            for scale, bias in self._films(cond.view(N * B, -1))  # (N*B, o, 1) each
+        ]
+        return [list(step) for step in zip(*per_block)]
 
     def _block(
         self, blk: nn.Module, x: torch.Tensor, film: tuple[torch.Tensor, torch.Tensor]
@@ -332,6 +290,22 @@ class ConditionalUnet1D(nn.Module):
             h = up(self._block(res2, self._block(res1, h, next(it)), next(it)))  # (B, d', 2L)
         out = self.final(h)  # (B, A, H + pad)
         return out[..., :H].transpose(1, 2)  # (B, H, A)
+
+    def sampling_step(self, x: torch.Tensor) -> Callable:
+        """The per-step function for a sampling loop over chunks shaped like ``x``.
+
+        At batch 1 this is a :class:`~vla_gr.core.unet_inference.UnetStepPlan` (same
+        maths, about half the per-op overhead), built now from views of the current
+        parameters, so call it once per chunk; otherwise (or for modules it does not
+        know, e.g. convs wrapped by unmerged LoRA) :meth:`denoise_step`.
+
+        Args:
+            x: ``(B, H, A)`` initial noisy actions.
+
+        Returns:
+            ``(x (B, H, A), films) -> (B, H, A)`` taking :meth:`step_conditions` entries.
+        """
+        return UnetStepPlan.build(self, x) or self.denoise_step
 
     def denoise(
         self, x: torch.Tensor, time_emb: torch.Tensor, prepared: dict[str, torch.Tensor]
@@ -484,6 +458,10 @@ class TransformerDenoiser(nn.Module):
             else:
                 h = block(h, memory, mask)  # (B, H, D)
         return self.action_out(self.norm(h))  # (B, H, A)
+
+    def sampling_step(self, x: torch.Tensor) -> Callable:
+        """The per-step function of a sampling loop: :meth:`denoise_step` (``x``: ``(B, H, A)``)."""
+        return self.denoise_step
 
     def denoise(
         self, x: torch.Tensor, time_emb: torch.Tensor, prepared: dict[str, torch.Tensor | None]

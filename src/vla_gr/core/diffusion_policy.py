@@ -384,7 +384,7 @@ class DiffusionPolicy(nn.Module):
         conds = self.denoiser.step_conditions(
             self.denoiser.embed_time(eval_t * FLOW_TIME_SCALE), prepared
         )
-        step = self._compiled_step or self.denoiser.denoise_step
+        step = self._compiled_step or self.denoiser.sampling_step(x)
         if sampler == "euler":
             for i in range(num_steps):
                 x = euler_step(x, step(x, conds[i]), dt)  # (B, H, A)
@@ -416,7 +416,7 @@ class DiffusionPolicy(nn.Module):
         conds = self.denoiser.step_conditions(
             self.denoiser.embed_time(timesteps.to(x.device, torch.float32)), prepared
         )
-        step = self._compiled_step or self.denoiser.denoise_step
+        step = self._compiled_step or self.denoiser.sampling_step(x)
         for i, t in enumerate(timesteps.tolist()):
             out = step(x, conds[i])  # (B, H, A)
             if sampler == "ddim":
