@@ -20,6 +20,7 @@ what does not change across integration steps out of their loop:
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 
@@ -129,6 +130,32 @@ class ConditionalResidualBlock1D(nn.Module):
             f = self.cond_encoder(cond)  # (M, 2 * o)
         f = f.reshape(-1, 2, self.out_ch, 1)  # (M, 2, o, 1)
         return f[:, 0], f[:, 1]
+
+    def film_grid(
+        self, time_act: torch.Tensor, global_act: torch.Tensor, cond: Callable[[], torch.Tensor]
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """FiLM ``(scale, bias)``, each ``(N, B, out_ch, 1)``, for all (time, context) pairs.
+
+        ``Linear(Mish([t, g])) = W_t Mish(t) + (W_g Mish(g) + b)`` as Mish is elementwise,
+        so the context half runs once, not once per time (``N`` times fewer MACs).
+
+        Args:
+            time_act: ``(N, E)`` Mish of the time embeddings.
+            global_act: ``(B, C)`` Mish of the pooled context.
+            cond: returns the full ``(N * B, E + C)`` condition (used when the encoder is
+                not exactly ``Mish -> Linear``, e.g. a LoRA-wrapped Linear).
+        """
+        N, B = time_act.shape[0], global_act.shape[0]
+        act, lin = self.cond_encoder
+        if type(act) is nn.Mish and type(lin) is nn.Linear:
+            E = time_act.shape[1]
+            f_t = torch.mm(time_act, lin.weight[:, :E].t())  # (N, 2o)
+            f_g = F.linear(global_act, lin.weight[:, E:], lin.bias)  # (B, 2o)
+            f = f_t[:, None] + f_g[None]  # (N, B, 2o)
+        else:
+            f = self.cond_encoder(cond())  # (N*B, 2o)
+        f = f.reshape(N, B, 2, self.out_ch, 1)  # (N, B, 2, o, 1)
+        return f[:, :, 0], f[:, :, 1]
 
     def forward(self, x: torch.Tensor, scale: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
         """Apply the block.
@@ -244,13 +271,18 @@ class ConditionalUnet1D(nn.Module):
         """
         g = prepared["global"]  # (B, C)
         N, B = time_embs.shape[0], g.shape[0]
-        cond = torch.cat(
-            (time_embs[:, None].expand(N, B, -1), g[None].expand(N, B, -1)), dim=-1
-        )  # (N, B, E + C)
+        cond = functools.cache(
+            lambda: torch.cat(
+                (time_embs[:, None].expand(N, B, -1), g[None].expand(N, B, -1)), dim=-1
+            ).view(N * B, -1)
+        )  # () -> (N*B, E + C), built only if some block needs it
+        time_act, global_act = F.mish(time_embs), F.mish(g)  # (N, E), (B, C)
         # One unbind per tensor here saves slicing ops inside every sampling step.
         per_block = [
-            zip(scale.reshape(N, B, -1, 1).unbind(0), bias.reshape(N, B, -1, 1).unbind(0))
-            for scale, bias in self._films(cond.view(N * B, -1))  # (N*B, o, 1) each
+            zip(scale.unbind(0), bias.unbind(0))  # N x (B, o, 1) each
+            for scale, bias in (
+                blk.film_grid(time_act, global_act, cond) for blk in self._res_blocks
+            )
         ]
         return [list(step) for step in zip(*per_block)]
 
