@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import copy
-import socket
+import datetime
 
 import pytest
 import torch
@@ -20,12 +20,6 @@ WORLD = 2
 GLOBAL_BATCH = 8
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _step(model, micro):
     opt = torch.optim.SGD([p for p in model.parameters() if p.requires_grad], lr=0.5)
     return train_step(model, micro, opt, grad_clip=0.0)
@@ -34,31 +28,42 @@ def _step(model, micro):
 ACCUMS = (1, 2)
 
 
-def _worker(rank: int, port: int, out_dir: str) -> None:
+def _worker(rank: int, out_dir: str) -> None:
     torch.set_num_threads(1)
+    # A file rendezvous needs no free port (a TCP store on a just-probed port hung at times).
     dist.init_process_group(
-        "gloo", init_method=f"tcp://127.0.0.1:{port}", rank=rank, world_size=WORLD
+        "gloo",
+        init_method=f"file://{out_dir}/rendezvous",
+        rank=rank,
+        world_size=WORLD,
+        timeout=datetime.timedelta(seconds=120),
     )
     try:
-        batch = fake_batch(tiny_model_config(), GLOBAL_BATCH, seed=5)
-        local = split_batch(batch, WORLD)[rank]  # this rank's share of the global batch
-        for accum in ACCUMS:
-            model = DistributedDataParallel(tiny_policy(0))
-            out = _step(model, split_batch(local, accum))
-            loss = torch.tensor([out["loss"]])
-            dist.all_reduce(loss)
-            if rank == 0:
-                state = {k: v.contiguous() for k, v in model.module.state_dict().items()}
-                state["__loss__"] = loss / WORLD
-                save_file(state, f"{out_dir}/accum{accum}.safetensors")
+        _steps_on_rank(rank, out_dir)
     finally:
+        # The DDP models were freed when _steps_on_rank returned: destroying the group while
+        # a DDP reducer is still alive can hang its destructor.
         dist.destroy_process_group()
+
+
+def _steps_on_rank(rank: int, out_dir: str) -> None:
+    batch = fake_batch(tiny_model_config(), GLOBAL_BATCH, seed=5)
+    local = split_batch(batch, WORLD)[rank]  # this rank's share of the global batch
+    for accum in ACCUMS:
+        model = DistributedDataParallel(tiny_policy(0))
+        out = _step(model, split_batch(local, accum))
+        loss = torch.tensor([out["loss"]])
+        dist.all_reduce(loss)
+        if rank == 0:
+            state = {k: v.contiguous() for k, v in model.module.state_dict().items()}
+            state["__loss__"] = loss / WORLD
+            save_file(state, f"{out_dir}/accum{accum}.safetensors")
 
 
 @pytest.fixture(scope="module")
 def ddp_results(tmp_path_factory):
     out = tmp_path_factory.mktemp("ddp")
-    mp.spawn(_worker, args=(_free_port(), str(out)), nprocs=WORLD, join=True)
+    mp.spawn(_worker, args=(str(out),), nprocs=WORLD, join=True)
     return {a: load_file(str(out / f"accum{a}.safetensors")) for a in ACCUMS}
 
 

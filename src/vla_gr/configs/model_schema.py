@@ -4,18 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-
-def check_choice(key: str, value, choices) -> None:
-    """Raise ValueError naming ``key`` when ``value`` is not one of ``choices``."""
-    if value not in choices:
-        raise ValueError(f"{key}={value!r} is not valid; choose one of {list(choices)}")
-
-
-def check_positive(key: str, value, allow_zero: bool = False) -> None:
-    """Raise ValueError naming ``key`` when ``value`` is not > 0 (or >= 0)."""
-    if not (value >= 0 if allow_zero else value > 0):
-        raise ValueError(f"{key}={value!r} must be {'>= 0' if allow_zero else '> 0'}")
-
+from vla_gr.configs.validation import check_choice, check_positive
 
 TEXT_ENCODERS = ("hashed", "minilm")
 VISION_POOLS = ("grid", "spatial_softmax")
@@ -40,7 +29,7 @@ class PeftConfig:
     lora_rank: int = 8
     lora_alpha: float = 16.0
     lora_dropout: float = 0.0
-    oft_rank: int = 4  # OFT block size
+    oft_rank: int = 4  # number of OFT blocks (peft r); in_features must be divisible by it
     adapter_bottleneck: int = 32
     target_modules: list[str] = field(
         default_factory=lambda: ["q_proj", "k_proj", "v_proj", "out_proj"]

@@ -13,21 +13,9 @@ from hydra.core.config_store import ConfigStore
 
 from vla_gr.configs.model_schema import ModelConfig
 from vla_gr.configs.training_schema import LoggingConfig, TrainingConfig
+from vla_gr.configs.validation import check_choice, check_positive
 
 SPLITS = ("train", "val", "test")
-
-
-def check_choice(key: str, value, choices) -> None:
-    """Raise ValueError naming ``key`` when ``value`` is not one of ``choices``."""
-    if value not in choices:
-        raise ValueError(f"{key}={value!r} is not valid; choose one of {list(choices)}")
-
-
-def check_positive(key: str, value, allow_zero: bool = False) -> None:
-    """Raise ValueError naming ``key`` when ``value`` is not > 0 (or >= 0)."""
-    ok = value >= 0 if allow_zero else value > 0
-    if not ok:
-        raise ValueError(f"{key}={value!r} must be {'>= 0' if allow_zero else '> 0'}")
 
 
 @dataclass

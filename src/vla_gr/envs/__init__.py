@@ -15,6 +15,10 @@ import os
 if "MUJOCO_GL" not in os.environ and not os.environ.get("DISPLAY"):
     os.environ["MUJOCO_GL"] = "egl"
     os.environ.setdefault("PYOPENGL_PLATFORM", "egl")
+# Mesa's llvmpipe reads this once, when the process creates its first GL context: with
+# render threads alive, a forked child (AsyncVectorEnv's default) hangs in its first render.
+# Single-threaded rendering is no slower at policy resolutions. An explicit value wins.
+os.environ.setdefault("LP_NUM_THREADS", "0")
 
 from gymnasium.envs.registration import register, registry
 

@@ -11,7 +11,6 @@ render and only happens when asked for.
 from __future__ import annotations
 
 import logging
-import os
 import re
 
 import mujoco
@@ -191,10 +190,9 @@ class RGBDRenderer:
 def make_gl_context(width: int, height: int):
     """A headless ``mujoco.GLContext`` (backend from ``MUJOCO_GL``: egl, osmesa or glfw).
 
-    Unless the user set it, ``LP_NUM_THREADS=0`` makes Mesa's llvmpipe (CPU rendering)
-    rasterise in the calling thread: as fast for small frames, one process per core scales
-    better, and a process that forks after rendering (``AsyncVectorEnv``) does not hang on
+    ``vla_gr.envs`` sets ``LP_NUM_THREADS=0`` on import unless the user set it: Mesa's
+    llvmpipe (CPU rendering) then rasterises in the calling thread, as fast for small
+    frames, and a process that forks after rendering (``AsyncVectorEnv``) does not hang on
     rasteriser threads that do not exist in the child. GPU drivers ignore it.
     """
-    os.environ.setdefault("LP_NUM_THREADS", "0")
     return mujoco.GLContext(width, height)
