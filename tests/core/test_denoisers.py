@@ -74,6 +74,22 @@ def test_step_conditions_equal_forward(kind, horizon):
             assert torch.allclose(net.denoise_step(x, conds[i]), ref, atol=1e-5)
 
 
+def test_step_conditions_with_a_lora_film_encoder_equal_forward():
+    torch.manual_seed(0)
+    net = ConditionalUnet1D(3, 12, (16, 32), time_embed_dim=16).eval()
+    apply_lora_to_model(net, ["downs.0.0.cond_encoder.1"], rank=2)  # not a plain Linear
+    with torch.no_grad():
+        for name, p in net.named_parameters():
+            if "lora_B" in name:
+                p.normal_(0.0, 0.1)
+        x, ctx, t = torch.randn(1, 8, 3), torch.randn(1, 2, 12), torch.tensor([70.0])
+        conds = net.step_conditions(net.embed_time(t), net.prepare_context(ctx))
+        ref = net(x, t, ctx)
+        assert torch.allclose(net.denoise_step(x, conds[0]), ref, atol=1e-5)
+        net.downs[0][0].cond_encoder[1].lora_B["default"].weight.zero_()  # LoRA mattered
+        assert not torch.allclose(net(x, t, ctx), ref, atol=1e-4)
+
+
 def test_unet_output_depends_on_time_and_context():
     torch.manual_seed(0)
     net = ConditionalUnet1D(2, 4, (8, 16), time_embed_dim=8).eval()

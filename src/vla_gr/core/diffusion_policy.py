@@ -23,7 +23,11 @@ Example (the seed's calls)::
 
 Sampling precomputes everything that does not depend on the noisy sample (time
 embeddings, context pooling/projection, FiLM parameters) once per chunk; only the
-denoiser's per-step trunk runs inside the loop.
+denoiser's per-step trunk runs inside the loop. That trunk is
+``denoiser.sampling_step(noise)``, asked for once per chunk: at batch 1 the U-Net gives
+a :class:`~vla_gr.core.unet_inference.UnetStepPlan` (same maths, about half the eager
+per-op overhead; built from views of the current parameters, so it can never run stale
+weights), otherwise the reference ``denoise_step``.
 """
 
 from __future__ import annotations
@@ -224,10 +228,11 @@ class DiffusionPolicy(nn.Module):
     def compile_sampler(self, **compile_kwargs) -> DiffusionPolicy:
         """Compile the per-step denoiser trunk with ``torch.compile`` (opt-in).
 
-        Removes per-op overhead from the sampling loop (measured ~2.5x per step on CPU
-        for the U-Net; the first call compiles, which takes a minute or more on a small
-        CPU). Shapes are static (``dynamic=False`` unless given). Call again after
-        changing the module structure (e.g. adding or merging adapters).
+        Fuses the per-step ops (for the U-Net at batch 1 on CPU about as fast as the
+        eager step plan, which it replaces; see ``benchmarks/results/bench_heads.md``).
+        The first call compiles, which takes a minute or more on a small CPU. Shapes are static
+        (``dynamic=False`` unless given). Call again after changing the module structure
+        (e.g. adding or merging adapters).
 
         Args:
             **compile_kwargs: forwarded to :func:`torch.compile`.

@@ -234,6 +234,10 @@ def _plan_up(m: nn.Module, like: torch.Tensor, length: int) -> _ConvTranspose:
     return _ConvTranspose(sel, m.in_channels, length, m.out_channels, k, w, m.bias)
 
 
+def _cudnn() -> bool:
+    return torch.backends.cudnn.enabled  # as F.group_norm passes it
+
+
 def _conv(op: _Conv, x: torch.Tensor) -> torch.Tensor:
     """``x (1, C_in, L)`` (any strides) -> ``(L_out, C_out)`` (time-major)."""
     x2 = x.view(op.c_in, op.l_in)  # (C, L)
@@ -248,7 +252,7 @@ def _conv_norm_act(op: _ConvNormAct, x: torch.Tensor) -> torch.Tensor:
     """``Mish(GroupNorm(conv(x)))``: ``(1, C_in, L) -> (1, C_out, L_out)``."""
     y = _conv(op.conv, x).t().unsqueeze(0)  # (1, Co, Lo)
     # torch.group_norm: F.group_norm without its Python-side checks (~5 us per call)
-    y = torch.group_norm(y, op.groups, op.weight, op.bias, op.eps, False)  # (1, Co, Lo)
+    y = torch.group_norm(y, op.groups, op.weight, op.bias, op.eps, _cudnn())  # (1, Co, Lo)
     return F.mish(y, inplace=True)
 
 
