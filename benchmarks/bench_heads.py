@@ -5,7 +5,9 @@
     python benchmarks/bench_heads.py --no-compile    # skip the torch.compile'd rows
 
 Measures p50/p95 per decision for DDPM-100, DDIM-10, flow-10, flow-5 and the L1
-head (H=16, ~2 M parameter U-Net head), the dual system's S1 step and S2 step,
+head (H=16, ~2 M parameter U-Net head), flow-10 through the U-Net's reference
+``denoise_step`` instead of its batch-1 step plan (the default eager path), the
+dual system's S1 step and S2 step,
 and a transformer-denoiser flow-10 head as base / LoRA unmerged / LoRA merged.
 Every figure is the median over ``--repeats`` rounds of ``--iters`` timed calls;
 variants compared against each other (DDPM vs DDIM, base vs LoRA) are timed
@@ -143,14 +145,20 @@ def run(iters: int, repeats: int, warmup: int, compile_heads: bool = True) -> di
     # ------------------------------------------------------------ action heads (U-Net)
     hidden = pick_hidden_dim("unet1d")
     diff, flow, l1 = (make_head(o, hidden) for o in ("diffusion", "flow_matching", "l1"))
+    flow_ref = make_head("flow_matching", hidden)
+    flow_ref.denoiser.sampling_step = lambda x: flow_ref.denoiser.denoise_step  # no step plan
     heads = {
         "DDPM-100": lambda: diff.get_action(ctx, num_inference_steps=100, sampler="ddpm"),
         "DDIM-10": lambda: diff.get_action(ctx, num_inference_steps=10, sampler="ddim"),
         "flow-10": lambda: flow.get_action(ctx, num_inference_steps=10, sampler="euler"),
         "flow-5": lambda: flow.get_action(ctx, num_inference_steps=5, sampler="euler"),
+        "flow-10 reference step": lambda: flow_ref.get_action(ctx, num_inference_steps=10),
         "L1": lambda: l1.get_action(ctx),
     }
-    assert heads["flow-10"]().shape == (1, HORIZON, ACTION_DIM)
+    noise = torch.randn(1, HORIZON, ACTION_DIM)
+    fast_out = flow.get_action(ctx, num_inference_steps=10, noise=noise)  # (1, H, A)
+    ref_out = flow_ref.get_action(ctx, num_inference_steps=10, noise=noise)  # (1, H, A)
+    plan_vs_ref = float((fast_out - ref_out).abs().max())
     slow = {"DDPM-100": heads.pop("DDPM-100"), "DDIM-10": heads["DDIM-10"]}
     side = bench_group(slow, max(3, iters // 5), repeats, warmup=1)
     timings = bench_group(heads, iters, repeats, warmup)
@@ -171,6 +179,10 @@ def run(iters: int, repeats: int, warmup: int, compile_heads: bool = True) -> di
         "params": {"diffusion": n_params(diff), "flow": n_params(flow), "l1": n_params(l1)},
         "timings": timings,
         "ddpm100_over_ddim10": ratio_of_medians(side["DDPM-100"], side["DDIM-10"]),
+        "reference_over_plan": ratio_of_medians(
+            timings["flow-10 reference step"], timings["flow-10"]
+        ),
+        "plan_vs_reference_max_abs_diff": plan_vs_ref,
     }
 
     # ------------------------------------------------------------ dual system
@@ -277,6 +289,8 @@ def to_markdown(res: dict) -> str:
     lines += [
         "",
         f"DDPM-100 / DDIM-10 (side by side): {h['ddpm100_over_ddim10']:.1f}x; "
+        f"flow-10 reference step / step plan: {h['reference_over_plan']:.2f}x "
+        f"(max |diff| {h['plan_vs_reference_max_abs_diff']:.1e}); "
         f"LoRA merged / base: {lo['merged_over_base']:.3f}; "
         f"unmerged / base: {lo['unmerged_over_base']:.3f}. "
         f"S2 runs every {d['plan_every']} S1 steps (2 Hz / 20 Hz). "
