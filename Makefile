@@ -54,6 +54,10 @@ format: setup
 
 bench: setup
 	$(PY) benchmarks/bench_env.py
+	$(PY) benchmarks/bench_expert.py --episodes 100 --split val --workers 2 --noise 0,0 --noise 0.2,0.05
+	$(PY) benchmarks/bench_heads.py
+	$(PY) benchmarks/bench_gr_field.py
+	$(PY) benchmarks/bench_train.py
 
 clean:
 	rm -rf $(VENV) outputs .pytest_cache
