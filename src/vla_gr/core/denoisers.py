@@ -149,9 +149,11 @@ class ConditionalResidualBlock1D(nn.Module):
         act, lin = self.cond_encoder
         if type(act) is nn.Mish and type(lin) is nn.Linear:
             E = time_act.shape[1]
-            f_t = torch.mm(time_act, lin.weight[:, :E].t())  # (N, 2o)
             f_g = F.linear(global_act, lin.weight[:, E:], lin.bias)  # (B, 2o)
-            f = f_t[:, None] + f_g[None]  # (N, B, 2o)
+            if B == 1:
+                f = torch.addmm(f_g, time_act, lin.weight[:, :E].t())  # (N, 2o)
+            else:
+                f = torch.mm(time_act, lin.weight[:, :E].t())[:, None] + f_g  # (N, B, 2o)
         else:
             f = self.cond_encoder(cond())  # (N*B, 2o)
         f = f.reshape(N, B, 2, self.out_ch, 1)  # (N, B, 2, o, 1)
