@@ -3,6 +3,7 @@
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import imageio.v3 as iio
 import pytest
@@ -16,9 +17,9 @@ def test_help_lists_commands(capsys):
         main(["--help"])
     assert exc.value.code == 0
     out = capsys.readouterr().out
-    for name in ("collect", "demo"):
+    for name in ("collect", "demo", "train"):
         assert name in out
-    assert set(COMMANDS) >= {"collect", "demo"}
+    assert set(COMMANDS) >= {"collect", "demo", "train"}
 
 
 def test_version(capsys):
@@ -29,7 +30,9 @@ def test_version(capsys):
 
 
 def test_console_script_and_module_entry():
-    out = subprocess.run(["vla-gr", "--version"], capture_output=True, text=True, check=True)
+    # The console script installed beside this interpreter (PATH need not hold the venv).
+    script = Path(sys.executable).with_name("vla-gr")
+    out = subprocess.run([str(script), "--version"], capture_output=True, text=True, check=True)
     assert __version__ in out.stdout
     for module in ("vla_gr.data.collect", "vla_gr.demo"):
         res = subprocess.run(
