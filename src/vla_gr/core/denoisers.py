@@ -174,7 +174,37 @@ class ConditionalResidualBlock1D(nn.Module):
         return self.block2(h) + self.residual(x)  # (B, out, H)
 
 
-class ConditionalUnet1D(nn.Module):
+class _Denoiser(nn.Module):
+    """Shared training-time entry of the denoisers: embed time, prepare context, denoise.
+
+    Subclasses provide ``embed_time``, ``prepare_context`` and ``denoise``; sampling loops
+    call those directly so that per-chunk work is done once.
+    """
+
+    def forward(
+        self,
+        x: torch.Tensor,
+        timesteps: torch.Tensor,
+        context: torch.Tensor,
+        context_padding_mask: torch.Tensor | None = None,
+    ) -> torch.Tensor:
+        """Training-time prediction.
+
+        Args:
+            x: ``(B, H, A)`` noisy actions.
+            timesteps: ``(B,)`` (float) timesteps.
+            context: ``(B, S, C)`` context tokens.
+            context_padding_mask: optional bool ``(B, S)``, ``True`` = padded.
+
+        Returns:
+            ``(B, H, A)``.
+        """
+        return self.denoise(
+            x, self.embed_time(timesteps), self.prepare_context(context, context_padding_mask)
+        )
+
+
+class ConditionalUnet1D(_Denoiser):
     """Diffusion Policy's temporal U-Net with FiLM conditioning.
 
     The FiLM parameters of every block depend only on ``[time embedding, pooled
@@ -358,30 +388,8 @@ class ConditionalUnet1D(nn.Module):
         cond = torch.cat((time_emb.expand(g.shape[0], -1), g), dim=-1)  # (B, E + C)
         return self.denoise_step(x, self._films(cond))
 
-    def forward(
-        self,
-        x: torch.Tensor,
-        timesteps: torch.Tensor,
-        context: torch.Tensor,
-        context_padding_mask: torch.Tensor | None = None,
-    ) -> torch.Tensor:
-        """Training-time prediction.
 
-        Args:
-            x: ``(B, H, A)`` noisy actions.
-            timesteps: ``(B,)`` (float) timesteps.
-            context: ``(B, S, C)`` context tokens.
-            context_padding_mask: optional bool ``(B, S)``, ``True`` = padded.
-
-        Returns:
-            ``(B, H, A)``.
-        """
-        return self.denoise(
-            x, self.embed_time(timesteps), self.prepare_context(context, context_padding_mask)
-        )
-
-
-class TransformerDenoiser(nn.Module):
+class TransformerDenoiser(_Denoiser):
     """Action tokens that self-attend (RoPE) and cross-attend to ``[time, context]`` tokens.
 
     Args:
@@ -513,25 +521,3 @@ class TransformerDenoiser(nn.Module):
         t = time_emb.expand(x.shape[0], -1).unsqueeze(1)  # (B, 1, D)
         memory = torch.cat((t, prepared["memory"]), dim=1)  # (B, 1 + S, D)
         return self.denoise_step(x, {"t": t, "memory": memory, "mask": prepared["mask"]})
-
-    def forward(
-        self,
-        x: torch.Tensor,
-        timesteps: torch.Tensor,
-        context: torch.Tensor,
-        context_padding_mask: torch.Tensor | None = None,
-    ) -> torch.Tensor:
-        """Training-time prediction.
-
-        Args:
-            x: ``(B, H, A)`` noisy actions.
-            timesteps: ``(B,)`` (float) timesteps.
-            context: ``(B, S, C)`` context tokens.
-            context_padding_mask: optional bool ``(B, S)``, ``True`` = padded.
-
-        Returns:
-            ``(B, H, A)``.
-        """
-        return self.denoise(
-            x, self.embed_time(timesteps), self.prepare_context(context, context_padding_mask)
-        )
