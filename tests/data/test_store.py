@@ -214,3 +214,21 @@ def test_interrupted_append_never_corrupts(tmp_path, monkeypatch, fail_at):
     np.testing.assert_array_equal(final.episode_indices, [0, 1, 2])
     np.testing.assert_array_equal(final.episode_ends, [5, 11, 14])
     np.testing.assert_array_equal(final.episode(2)["action"], fake_episode(2, 3).action)
+
+
+def test_creation_is_atomic(tmp_path, monkeypatch):
+    """A failure while building a new store leaves no store at the path (never half-created)."""
+    path = tmp_path / "new.zarr"
+
+    def boom(*args, **kwargs):
+        raise RuntimeError("killed while creating")
+
+    monkeypatch.setattr(zarr.Group, "create_array", boom)
+    with pytest.raises(RuntimeError, match="killed while creating"):
+        EpisodeStore.create(path, image_size=8)
+    assert not path.exists()
+    monkeypatch.undo()
+    store = EpisodeStore.create(path, image_size=8, overwrite=True)
+    assert store.num_episodes == 0
+    assert sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith(".")) == ["new.zarr"]
+    assert EpisodeStore.open(path).num_episodes == 0

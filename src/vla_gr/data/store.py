@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import shutil
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -145,6 +146,8 @@ class EpisodeStore:
 
         Raises ``FileExistsError`` if ``path`` exists and ``overwrite`` is False.
         ``info`` (JSON-able) is kept in the root attributes (e.g. the collect config).
+        The store is built under a temporary sibling name and renamed into place, so
+        ``path`` is either absent or a complete, valid empty store (never half-created).
         """
         path = Path(path)
         if isinstance(image_size, int):
@@ -157,7 +160,10 @@ class EpisodeStore:
             if not overwrite:
                 raise FileExistsError(f"store {path} already exists (use overwrite=True)")
             shutil.rmtree(path) if path.is_dir() else path.unlink()
-        group = zarr.open_group(str(path), mode="w-", zarr_format=3)
+        building = path.with_name(f".{path.name}.creating-{os.getpid()}")
+        if building.exists():
+            shutil.rmtree(building)
+        group = zarr.open_group(str(building), mode="w-", zarr_format=3)
         data, meta = group.create_group("data"), group.create_group("meta")
         for key, (shape, dtype) in _frame_specs(tuple(image_size)).items():
             itemsize = np.dtype(dtype).itemsize
@@ -183,8 +189,9 @@ class EpisodeStore:
                 "info": dict(info or {}),
             }
         )
+        os.replace(building, path)
         log.info("created episode store %s (images %dx%d)", path, *image_size)
-        return cls(path, group, mode="a")
+        return cls(path, zarr.open_group(str(path), mode="a", zarr_format=3), mode="a")
 
     @classmethod
     def open(cls, path: str | Path, mode: str = "r") -> EpisodeStore:
