@@ -8,8 +8,10 @@ config_server`` (DDP: NCCL on GPU, gloo on CPU). Read top to bottom:
 3. make sure the episode store exists, build train / held-out loaders;
 4. build the policy (normalisers from the data, optional init weights, PEFT), the EMA,
    AdamW + warmup-cosine, the fp16 GradScaler; restore all of it on ``training.resume``;
-5. loop: ``train_step()`` (accumulation, AMP, clipping, EMA), log, validate (EMA weights),
-   checkpoint ``latest`` / ``best`` atomically on rank 0.
+5. loop: ``train_step()`` (accumulation, AMP, clipping, EMA), log, validate (EMA weights:
+   held-out loss, and closed-loop SR / SPL on a few ``val`` episodes when
+   ``training.eval_episodes`` > 0), checkpoint ``latest`` / ``best`` (picked by
+   ``training.best_metric``) atomically on rank 0.
 
 The run folder holds ``config.yaml``, ``metrics.jsonl``, ``tensorboard/`` and
 ``checkpoints/{step_*, latest, best}``.
@@ -34,6 +36,13 @@ from vla_gr import __version__
 from vla_gr.configs.schema import VLAGRConfig
 from vla_gr.policy import VLAGRPolicy, apply_peft
 from vla_gr.training import checkpoint as ckpt
+from vla_gr.training.closed_loop import (
+    WORST,
+    best_score,
+    closed_loop_metrics,
+    score_from_state,
+    score_to_json,
+)
 from vla_gr.training.data import build_datasets, build_loaders, prepare_store
 from vla_gr.training.distributed import (
     DistInfo,
@@ -251,11 +260,12 @@ def _train(cfg: VLAGRConfig, resolved: DictConfig, dist: DistInfo) -> dict:
     scheduler = build_scheduler(optimizer, t.warmup_steps, t.steps, t.min_lr_ratio)
     scaler = torch.amp.GradScaler(device.type) if t.amp == "fp16" else None
 
-    step, epoch, position, best = 0, 0, 0, math.inf
+    step, epoch, position, best, score = 0, 0, 0, math.inf, WORST
     if loaded is not None:
         step, epoch, position, best = _restore(
             loaded, model, ema, optimizer, scheduler, scaler, dist, cfg.seed
         )
+        score = score_from_state(loaded.state, t.best_metric)
         log.info("resumed from %s at step %d", loaded.path, step)
     sampler.set_position(epoch, position)
 
@@ -288,7 +298,9 @@ def _train(cfg: VLAGRConfig, resolved: DictConfig, dist: DistInfo) -> dict:
     )
     samples_per_step = t.batch_size * t.grad_accum * dist.world_size
     batches = iter(train_loader)
-    val_loss = math.nan
+    val_loss, evals = math.nan, {}
+    validates = val_loader is not None or t.eval_episodes > 0
+    picks_best = val_loader is not None or t.best_metric != "val_loss"  # else: best = latest
     last = {"loss": math.nan}
     try:
         while step < t.steps:
@@ -328,27 +340,28 @@ def _train(cfg: VLAGRConfig, resolved: DictConfig, dist: DistInfo) -> dict:
                     | {"train/samples_per_s": sps, "train/epoch": epoch},
                 )
             is_best = False
-            if (
-                val_loader is not None
-                and t.val_every
-                and (step % t.val_every == 0 or step == t.steps)
-            ):
+            if validates and t.val_every and (step % t.val_every == 0 or step == t.steps):
                 with ema.average_parameters(model) if ema else contextlib.nullcontext():
-                    val_loss = validation_loss(
-                        model, val_loader, t.val_batches, device, t.amp, cfg.seed
-                    )
-                is_best = val_loss < best
-                best = min(best, val_loss)
-                logger.log(step, {"val/loss": val_loss, "val/best_loss": best})
+                    if val_loader is not None:
+                        val_loss = validation_loss(
+                            model, val_loader, t.val_batches, device, t.amp, cfg.seed
+                        )
+                        best = min(best, val_loss)
+                    evals = closed_loop_metrics(model, cfg, dist, lambda: autocast(device, t.amp))
+                new_score = best_score(t.best_metric, val_loss, evals)
+                is_best = new_score > score
+                score = max(score, new_score)
+                metrics = {"val/loss": val_loss, "val/best_loss": best} | evals
+                logger.log(step, {k: v for k, v in metrics.items() if math.isfinite(v)})
             periodic = t.checkpoint_every and step % t.checkpoint_every == 0
             if periodic or step == t.steps or is_best:
-                links = ["latest"] + (["best"] if is_best or val_loader is None else [])
+                links = ["latest"] + (["best"] if is_best or not picks_best else [])
                 _save(
                     run_dir,
                     step,
                     epoch,
                     position,
-                    best,
+                    (best, t.best_metric, score),
                     model,
                     ema,
                     optimizer,
@@ -368,6 +381,9 @@ def _train(cfg: VLAGRConfig, resolved: DictConfig, dist: DistInfo) -> dict:
         "train_loss": last["loss"],
         "val_loss": val_loss,
         "best_val_loss": best,
+        "best_metric": t.best_metric,
+        "best_score": score[0],
+        **evals,
         "world_size": dist.world_size,
     }
 
@@ -391,7 +407,11 @@ def _save(
     links,
     keep,
 ) -> None:
-    """Gather per-rank RNG, then rank 0 writes ``checkpoints/step_<step>``."""
+    """Gather per-rank RNG, then rank 0 writes ``checkpoints/step_<step>``.
+
+    ``best`` is (lowest val loss, best_metric name, best score of :func:`best_score`).
+    """
+    best, best_metric, score = best
     rngs = _gather_rng(dist)
     if dist.is_main:
         raw = model.state_dict()
@@ -407,6 +427,8 @@ def _save(
             "epoch": epoch,
             "epoch_position": position,
             "best_val_loss": best if math.isfinite(best) else None,
+            "best_metric": best_metric,
+            "best_score": score_to_json(score),
             "world_size": dist.world_size,
             "model_weights": "ema" if ema else "raw",
             "ema_num_updates": ema.num_updates if ema else 0,

@@ -12,6 +12,7 @@ DEVICES = ("auto", "cpu", "cuda")
 IF_MISSING = ("error", "collect", "synthetic")
 DDP_BACKENDS = ("auto", "nccl", "gloo")
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
+BEST_METRICS = ("val_loss", "success", "spl")
 
 
 @dataclass
@@ -47,6 +48,9 @@ class TrainingConfig:
     # Evaluation / checkpointing.
     val_every: int = 200  # optimiser steps between validation losses (0 = never)
     val_batches: int = 8  # batches per validation (per process)
+    eval_episodes: int = 0  # closed-loop `val` episodes (0..N-1) at each validation; 0 = off
+    eval_max_steps: int = 300  # step budget of each closed-loop episode during training
+    best_metric: str = "val_loss"  # what picks `best`: val_loss (lowest) | success | spl (highest)
     checkpoint_every: int = 200  # optimiser steps between `latest` checkpoints (0 = end only)
     keep_checkpoints: int = 2  # step folders kept besides the one `best` points to
     resume: str | None = None  # <run>/checkpoints/latest
@@ -77,6 +81,19 @@ class TrainingConfig:
         check_choice("training.amp", self.amp, AMP_MODES)
         check_choice("training.ddp_backend", self.ddp_backend, DDP_BACKENDS)
         check_positive("training.keep_checkpoints", self.keep_checkpoints)
+        check_positive("training.eval_episodes", self.eval_episodes, allow_zero=True)
+        check_positive("training.eval_max_steps", self.eval_max_steps)
+        check_choice("training.best_metric", self.best_metric, BEST_METRICS)
+        if self.best_metric != "val_loss" and self.eval_episodes == 0:
+            raise ValueError(
+                f"training.best_metric={self.best_metric!r} needs closed-loop evaluation: set "
+                "training.eval_episodes > 0 or use training.best_metric=val_loss"
+            )
+        if self.eval_episodes > 0 and self.val_every == 0:
+            raise ValueError(
+                f"training.eval_episodes={self.eval_episodes} runs at each validation, but "
+                "training.val_every=0 never validates; set training.val_every > 0"
+            )
 
 
 @dataclass

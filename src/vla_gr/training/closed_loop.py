@@ -1,0 +1,84 @@
+"""Training-time closed-loop validation and the score that picks the ``best`` checkpoint.
+
+At each validation rank 0 runs the (EMA) policy on ``training.eval_episodes`` fixed ``val``
+episodes (indices 0..N-1, so successive evaluations are comparable) and the other ranks
+wait; the metrics are then broadcast so every rank takes the same checkpoint decision.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Mapping
+
+import torch
+
+from vla_gr.training.distributed import DistInfo, barrier
+
+log = logging.getLogger(__name__)
+
+LOGGED = ("success", "spl", "soft_spl", "collision_rate")
+WORST = (-math.inf, -math.inf)
+
+
+def closed_loop_metrics(model, cfg, dist: DistInfo, amp_context) -> dict[str, float]:
+    """``val/<metric>`` of ``model`` on ``cfg.training.eval_episodes`` episodes ({} when off).
+
+    ``amp_context`` is a zero-argument callable returning the autocast context to run in.
+    """
+    t = cfg.training
+    if t.eval_episodes <= 0:
+        return {}
+    out: list = [None]
+    if dist.is_main:
+        from vla_gr.data.collect import env_kwargs_from_config
+        from vla_gr.evaluate import rollout_policy, summarize
+
+        env_kwargs = env_kwargs_from_config(cfg, "val", semantic=False)
+        env_kwargs["max_episode_steps"] = t.eval_max_steps
+        t0 = time.perf_counter()
+        with amp_context():
+            infos = rollout_policy(model, env_kwargs, range(t.eval_episodes), dist.device)
+        summary = summarize(infos)
+        out[0] = {f"val/{k}": float(summary[k]) for k in LOGGED}
+        out[0]["val/eval_seconds"] = time.perf_counter() - t0
+    if dist.distributed:
+        barrier()
+        torch.distributed.broadcast_object_list(out, src=0)
+    return out[0]
+
+
+def best_score(metric: str, val_loss: float, evals: Mapping[str, float]) -> tuple[float, float]:
+    """Higher is better: ``(-val_loss, 0)`` or ``(val/<metric>, -val_loss)`` (ties: lower loss).
+
+    A missing (NaN) loss counts as the worst tie-breaker.
+    """
+    neg_loss = -val_loss if not math.isnan(val_loss) else -math.inf
+    if metric == "val_loss":
+        return (neg_loss, 0.0)
+    return (float(evals[f"val/{metric}"]), neg_loss)
+
+
+def score_to_json(score: tuple[float, float]) -> list[float | None]:
+    """JSON-safe copy of a score (non-finite entries -> None)."""
+    return [v if math.isfinite(v) else None for v in score]
+
+
+def score_from_state(state: Mapping, metric: str) -> tuple[float, float]:
+    """The best score saved in a trainer state for ``metric``; WORST when there is none.
+
+    Checkpoints written before closed-loop validation hold only ``best_val_loss``; it is the
+    score when ``metric`` is ``val_loss``. A checkpoint scored by another metric restarts the
+    tracking (with a warning).
+    """
+    saved_metric = state.get("best_metric", "val_loss")
+    if saved_metric != metric:
+        log.warning("checkpoint picked `best` by %s, this run by %s: restart", saved_metric, metric)
+        return WORST
+    if state.get("best_score") is not None:
+        a, b = (-math.inf if v is None else float(v) for v in state["best_score"])
+        return (a, b)
+    if metric == "val_loss" and state.get("best_val_loss") is not None:
+        return (-float(state["best_val_loss"]), 0.0)
+    return WORST
