@@ -382,7 +382,7 @@ def _train(cfg: VLAGRConfig, resolved: DictConfig, dist: DistInfo) -> dict:
         "val_loss": val_loss,
         "best_val_loss": best,
         "best_metric": t.best_metric,
-        "best_score": score[0],
+        "best_score": best if t.best_metric == "val_loss" else score[0],
         **evals,
         "world_size": dist.world_size,
     }
