@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.train_helpers import tiny_policy
+from tests.helpers import tiny_policy
 from vla_gr.envs.metrics import AGGREGATE_KEYS
 from vla_gr.evaluate import rollout_policy, summarize
 

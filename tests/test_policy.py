@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from tests.train_helpers import fake_batch, tiny_policy
+from tests.helpers import fake_batch, tiny_policy
 from vla_gr.data.normalize import MinMaxNormalizer
 
 

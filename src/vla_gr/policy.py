@@ -28,6 +28,7 @@ import torch
 from torch import nn
 from torch.utils.checkpoint import checkpoint
 
+from vla_gr.checkpoint import load_model_state, read_checkpoint
 from vla_gr.configs.model_schema import ModelConfig
 from vla_gr.core.diffusion_policy import DiffusionPolicy
 from vla_gr.core.encoders import PoseEncoder, RGBDEncoder, build_text_encoder, pose_features
@@ -95,8 +96,6 @@ class VLAGRPolicy(nn.Module):
         (the EMA averages when training used EMA). Returned in eval mode.
         """
         from omegaconf import OmegaConf
-
-        from vla_gr.training.checkpoint import load_model_state, read_checkpoint
 
         loaded = read_checkpoint(path)
         saved = OmegaConf.create(loaded.config_yaml)

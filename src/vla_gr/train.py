@@ -35,7 +35,7 @@ from torch.nn.parallel import DistributedDataParallel
 from vla_gr import __version__
 from vla_gr.configs.schema import VLAGRConfig
 from vla_gr.policy import VLAGRPolicy, apply_peft
-from vla_gr.training import checkpoint as ckpt
+from vla_gr import checkpoint as ckpt
 from vla_gr.training.closed_loop import (
     WORST,
     best_score,

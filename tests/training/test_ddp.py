@@ -12,7 +12,7 @@ import torch.multiprocessing as mp
 from safetensors.torch import load_file, save_file
 from torch.nn.parallel import DistributedDataParallel
 
-from tests.train_helpers import fake_batch, split_batch, tiny_model_config, tiny_policy
+from tests.helpers import fake_batch, split_batch, tiny_model_config, tiny_policy
 from vla_gr.train import train_step
 from vla_gr.training.distributed import ResumableSampler
 

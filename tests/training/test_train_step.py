@@ -8,7 +8,7 @@ import math
 import pytest
 import torch
 
-from tests.train_helpers import fake_batch, split_batch, tiny_model_config, tiny_policy
+from tests.helpers import fake_batch, split_batch, tiny_model_config, tiny_policy
 from vla_gr.train import train_step
 from vla_gr.training.ema import EMA, ema_decay
 from vla_gr.training.optim import CPUOffloadAdamW, build_optimizer, param_groups, warmup_cosine

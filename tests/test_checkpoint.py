@@ -12,8 +12,8 @@ import time
 import pytest
 import torch
 
-from tests.train_helpers import tiny_policy
-from vla_gr.training import checkpoint as ckpt
+from tests.helpers import tiny_policy
+from vla_gr import checkpoint as ckpt
 from vla_gr.training.optim import build_optimizer
 
 
@@ -105,7 +105,7 @@ def test_config_differences_names_keys():
 _CHILD = textwrap.dedent(
     """
     import sys, time, torch
-    from vla_gr.training import checkpoint as ckpt
+    from vla_gr import checkpoint as ckpt
     root, mode = sys.argv[1], sys.argv[2]
     def save(step):
         w = torch.full((256, 1024), float(step))  # 1 MiB per file

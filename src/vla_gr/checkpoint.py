@@ -1,4 +1,9 @@
-"""Checkpoints that survive kills and refuse to load when corrupt or mismatched.
+"""Checkpoint folders: written by training, read by the agent; they survive kills and
+refuse to load when corrupt or mismatched.
+
+Below both of its users: ``vla_gr.train`` (via ``training/state.py``) writes them and
+``VLAGRPolicy.from_pretrained`` (``policy.py``) reads them back; this module imports
+nothing of ``vla_gr``.
 
 A checkpoint is a folder ``checkpoints/step_XXXXXXXX/`` holding
 
