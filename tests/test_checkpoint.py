@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -14,6 +15,7 @@ import torch
 
 from tests.helpers import tiny_policy
 from vla_gr import checkpoint as ckpt
+from vla_gr.policy import VLAGRPolicy
 from vla_gr.training.optim import build_optimizer
 
 
@@ -51,8 +53,6 @@ def test_optimizer_state_round_trip_without_pickle():
     opt.step()
     tensors, meta = ckpt.flatten_optimizer_state(opt.state_dict())
     assert all(isinstance(v, torch.Tensor) for v in tensors.values())
-    import json
-
     meta = json.loads(json.dumps(meta))  # must survive JSON
     fresh = build_optimizer(tiny_policy(0), lr=5.0, weight_decay=0.0)
     fresh.load_state_dict(ckpt.unflatten_optimizer_state(tensors, meta))
@@ -152,3 +152,36 @@ def test_sigkill_during_checkpoint_write_keeps_latest_loadable(tmp_path, mode):
     ckpt.prune_checkpoints(tmp_path, keep=2)
     assert not list(tmp_path.glob(".tmp-*"))  # leftovers of the killed writer removed
     assert ckpt.read_checkpoint(tmp_path / "latest").state["step"] == 1000
+
+
+def test_a_run_folder_instead_of_a_checkpoint_names_the_checkpoint(tmp_path):
+    run = tmp_path / "run"
+    _save(run / "checkpoints", 1, links=("latest", "best"))
+    latest = run / "checkpoints" / "latest"
+    for given in (run, run / "checkpoints"):
+        with pytest.raises(ckpt.CheckpointError, match="did you mean") as err:
+            ckpt.read_checkpoint(given)
+        assert str(latest) in str(err.value) and "manifest" not in str(err.value)
+    with pytest.raises(ckpt.CheckpointError, match=f"did you mean {latest}"):
+        VLAGRPolicy.from_pretrained(run)
+    (run / "checkpoints" / "latest").unlink()  # only `best` left: that is the suggestion
+    with pytest.raises(ckpt.CheckpointError, match=f"did you mean {run / 'checkpoints' / 'best'}"):
+        ckpt.read_checkpoint(run)
+
+
+@pytest.mark.parametrize(
+    "fname",
+    ["trainer_state.json", "config.yaml", "model.safetensors", "training_state.safetensors"],
+)
+def test_garbage_that_matches_the_manifest_is_refused_naming_the_file(tmp_path, fname):
+    """A manifest edited to match a garbage file passes the checksums; parsing still names it."""
+    path = _save(tmp_path, 1)
+    (path / fname).write_bytes(b"{not: [valid\x00\xff")
+    manifest = json.loads((path / "manifest.json").read_text())
+    manifest["files"][fname] = {
+        "sha256": ckpt.sha256_file(path / fname),
+        "bytes": (path / fname).stat().st_size,
+    }
+    (path / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(ckpt.CheckpointError, match=f"{path}.*{fname}"):
+        ckpt.read_checkpoint(path)

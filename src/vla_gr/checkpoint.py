@@ -35,6 +35,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import yaml
+from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 from torch import nn
 
@@ -264,13 +266,15 @@ def read_checkpoint(path: str | Path, verify: bool = True) -> LoadedCheckpoint:
         raise CheckpointError(f"checkpoint {path} does not exist{hint}")
     if not path.is_dir():
         raise CheckpointError(f"checkpoint {path} is not a folder")
-    manifest_path = path / MANIFEST_FILE
-    if not manifest_path.is_file():
+    if not (path / MANIFEST_FILE).is_file():
+        suggestion = _checkpoint_inside(path)
+        if suggestion is not None:
+            kind = "checkpoints" if suggestion.parent == path else "run"
+            raise CheckpointError(
+                f"{path} is a {kind} folder, not a checkpoint; did you mean {suggestion}?"
+            )
         raise CheckpointError(f"checkpoint {path} has no {MANIFEST_FILE}: incomplete write?")
-    try:
-        manifest = json.loads(manifest_path.read_text())
-    except json.JSONDecodeError as err:
-        raise CheckpointError(f"checkpoint {path}: {MANIFEST_FILE} is corrupt ({err})") from None
+    manifest = _parse(path, MANIFEST_FILE, _read_json)
     if manifest.get("format") != FORMAT_NAME:
         raise CheckpointError(f"checkpoint {path}: format {manifest.get('format')!r} unknown")
     if int(manifest.get("format_version", 10**9)) > FORMAT_VERSION:
@@ -294,14 +298,47 @@ def read_checkpoint(path: str | Path, verify: bool = True) -> LoadedCheckpoint:
             raise CheckpointError(f"checkpoint {path}: {fname} fails its SHA-256 check (corrupt)")
     training = {}
     if (path / TRAINING_FILE).is_file():
-        training = load_file(str(path / TRAINING_FILE))
+        training = _parse(path, TRAINING_FILE, _read_tensors)
     return LoadedCheckpoint(
         path=path,
-        model=load_file(str(path / MODEL_FILE)),
-        state=json.loads((path / STATE_FILE).read_text()),
-        config_yaml=(path / CONFIG_FILE).read_text(),
+        model=_parse(path, MODEL_FILE, _read_tensors),
+        state=_parse(path, STATE_FILE, _read_json),
+        config_yaml=_parse(path, CONFIG_FILE, _read_yaml_text),
         training=training,
     )
+
+
+def _checkpoint_inside(folder: Path) -> Path | None:
+    """``<run>/checkpoints/latest`` (or ``best``) when ``folder`` is a run or its
+    ``checkpoints/`` folder, else None."""
+    for root in (folder / "checkpoints", folder):
+        for link in LINKS:
+            if (root / link / MANIFEST_FILE).is_file():
+                return root / link
+    return None
+
+
+def _read_json(file: Path):
+    return json.loads(file.read_text())
+
+
+def _read_tensors(file: Path) -> dict[str, torch.Tensor]:
+    return load_file(str(file))
+
+
+def _read_yaml_text(file: Path) -> str:
+    text = file.read_text()
+    if not isinstance(yaml.safe_load(text), dict):
+        raise ValueError("not a YAML mapping")
+    return text
+
+
+def _parse(path: Path, fname: str, reader):
+    """``reader(path / fname)``; a file that does not parse is a CheckpointError naming it."""
+    try:
+        return reader(path / fname)
+    except (ValueError, yaml.YAMLError, SafetensorError) as err:  # JSON and Unicode errors too
+        raise CheckpointError(f"checkpoint {path}: {fname} is unreadable ({err})") from None
 
 
 def load_model_state(model: nn.Module, tensors: Mapping[str, torch.Tensor], source: str) -> None:
