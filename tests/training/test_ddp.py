@@ -13,8 +13,8 @@ from safetensors.torch import load_file, save_file
 from torch.nn.parallel import DistributedDataParallel
 
 from tests.helpers import fake_batch, split_batch, tiny_model_config, tiny_policy
-from vla_gr.train import train_step
 from vla_gr.training.distributed import ResumableSampler
+from vla_gr.training.step import train_step
 
 WORLD = 2
 GLOBAL_BATCH = 8

@@ -9,9 +9,9 @@ import pytest
 import torch
 
 from tests.helpers import fake_batch, split_batch, tiny_model_config, tiny_policy
-from vla_gr.train import train_step
 from vla_gr.training.ema import EMA, ema_decay
 from vla_gr.training.optim import CPUOffloadAdamW, build_optimizer, param_groups, warmup_cosine
+from vla_gr.training.step import train_step
 
 
 def _step(model, micro, **kw):
