@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import torch
 
@@ -59,3 +60,13 @@ def replace(cfg, **sections):
     """``dataclasses.replace`` on sections: replace(cfg, training={"steps": 4})."""
     updates = {k: dataclasses.replace(getattr(cfg, k), **v) for k, v in sections.items()}
     return dataclasses.replace(cfg, **updates)
+
+
+def train_overrides(tmp: Path, **extra) -> list[str]:
+    """Hydra overrides for a training run under ``tmp`` (a synthetic store, no TensorBoard)."""
+    base = {
+        "training.dataset": str(tmp / "syn.zarr"),
+        "training.output_dir": str(tmp / "runs"),
+        "logging.tensorboard": "false",
+    }
+    return [f"{k}={v}" for k, v in (base | extra).items()]

@@ -2,31 +2,26 @@
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
 import pytest
 
+from tests.helpers import train_overrides
 from vla_gr import cli
 from vla_gr.checkpoint import read_checkpoint
 from vla_gr.training.closed_loop import WORST, best_score, score_from_state
+from vla_gr.training.logger import read_metrics
 
 EVAL = ["training.eval_episodes=1", "training.best_metric=spl", "training.eval_max_steps=20"]
 
 
 def _args(tmp: Path) -> list[str]:
-    return [
-        f"training.dataset={tmp / 'syn.zarr'}",
-        f"training.output_dir={tmp / 'runs'}",
-        "training.run_name=ev",
-        "logging.tensorboard=false",
-        *EVAL,
-    ]
+    return [*train_overrides(tmp, **{"training.run_name": "ev"}), *EVAL]
 
 
 def _records(run: Path) -> list[dict]:
-    return [json.loads(x) for x in (run / "metrics.jsonl").read_text().split("\n") if x]
+    return read_metrics(run / "metrics.jsonl")
 
 
 def test_debug_preset_logs_closed_loop_metrics_and_picks_best_by_spl(tmp_path):

@@ -2,27 +2,22 @@
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 from pathlib import Path
 
 import torch
 
+from tests.helpers import train_overrides
 from vla_gr import checkpoint as ckpt
 from vla_gr import cli
 from vla_gr.configs import load_config
 from vla_gr.train import train
+from vla_gr.training.logger import read_metrics
 
 
 def _args(tmp: Path, **extra) -> list[str]:
-    base = {
-        "training.dataset": str(tmp / "syn.zarr"),
-        "training.output_dir": str(tmp / "runs"),
-        "training.run_name": "r",
-        "logging.tensorboard": "false",
-    }
-    return [f"{k}={v}" for k, v in (base | extra).items()]
+    return train_overrides(tmp, **{"training.run_name": "r", **extra})
 
 
 def _train(tmp: Path, **extra) -> dict:
@@ -31,7 +26,7 @@ def _train(tmp: Path, **extra) -> dict:
 
 
 def _rows(run: Path) -> list[dict]:
-    return [json.loads(x) for x in (run / "metrics.jsonl").read_text().splitlines() if x]
+    return read_metrics(run / "metrics.jsonl")
 
 
 def test_resume_from_an_earlier_checkpoint_logs_each_step_once(tmp_path):

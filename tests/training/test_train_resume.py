@@ -12,20 +12,12 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
+from tests.helpers import train_overrides
 from vla_gr import cli
 from vla_gr.configs import load_config
 from vla_gr.policy import VLAGRPolicy, make_fake_batch
 from vla_gr.train import train
-
-
-def _overrides(tmp: Path, **extra) -> list[str]:
-    base = {
-        "training.dataset": str(tmp / "syn.zarr"),
-        "training.output_dir": str(tmp / "runs"),
-        "logging.tensorboard": "false",
-    }
-    base.update(extra)
-    return [f"{k}={v}" for k, v in base.items()]
+from vla_gr.training.logger import read_metrics
 
 
 def _free_port() -> int:
@@ -54,18 +46,22 @@ def test_four_steps_equal_two_plus_resume_plus_two(tmp_path):
     }
     resolved, cfg = load_config(
         "config_debug",
-        _overrides(tmp_path, **common, **{"training.steps": 4, "training.run_name": "straight"}),
+        train_overrides(
+            tmp_path, **common, **{"training.steps": 4, "training.run_name": "straight"}
+        ),
     )
     train(cfg, resolved)
     resolved, cfg = load_config(
         "config_debug",
-        _overrides(tmp_path, **common, **{"training.steps": 2, "training.run_name": "split"}),
+        train_overrides(tmp_path, **common | {"training.steps": 2, "training.run_name": "split"}),
     )
     train(cfg, resolved)
     resume = tmp_path / "runs" / "split" / "checkpoints" / "latest"
     resolved, cfg = load_config(
         "config_debug",
-        _overrides(tmp_path, **common, **{"training.steps": 4, "training.resume": str(resume)}),
+        train_overrides(
+            tmp_path, **common, **{"training.steps": 4, "training.resume": str(resume)}
+        ),
     )
     summary = train(cfg, resolved)
     assert summary["steps"] == 4 and Path(summary["run_dir"]).name == "split"
@@ -76,14 +72,12 @@ def test_four_steps_equal_two_plus_resume_plus_two(tmp_path):
         assert torch.equal(value, split[name]), name
     state = json.loads((resume / "trainer_state.json").read_text())
     assert state["step"] == 4 and state["epoch"] == 1
-    rows = [
-        json.loads(x) for x in (resume.parent.parent / "metrics.jsonl").read_text().split("\n") if x
-    ]
+    rows = read_metrics(resume.parent.parent / "metrics.jsonl")
     assert [r["step"] for r in rows if "train/loss" in r] == [1, 2, 3, 4]
 
 
 def test_debug_preset_trains_and_resumes_through_the_cli(tmp_path):
-    args = _overrides(tmp_path, **{"training.run_name": "cli", "logging.tensorboard": "true"})
+    args = train_overrides(tmp_path, **{"training.run_name": "cli", "logging.tensorboard": "true"})
     done = subprocess.run(
         [sys.executable, "-m", "vla_gr.train", "--config-name", "config_debug", *args],
         capture_output=True,
@@ -111,7 +105,7 @@ def test_debug_preset_trains_and_resumes_through_the_cli(tmp_path):
     )
     assert code == 0
     assert (run / "checkpoints" / "latest").resolve().name == "step_00000003"
-    steps = [json.loads(x)["step"] for x in (run / "metrics.jsonl").read_text().split("\n") if x]
+    steps = [r["step"] for r in read_metrics(run / "metrics.jsonl")]
     assert sorted(set(steps)) == [1, 2, 3]
     # A checkpoint of another model is refused before any work, naming the key.
     code = cli.main(
@@ -132,7 +126,7 @@ def test_debug_preset_trains_and_resumes_through_the_cli(tmp_path):
 @pytest.mark.slow
 def test_torchrun_two_cpu_processes_train_the_debug_preset(tmp_path):
     """The same script under ``torchrun --nproc_per_node=2`` (gloo on CPU)."""
-    args = _overrides(tmp_path, **{"training.run_name": "ddp", "training.steps": 3})
+    args = train_overrides(tmp_path, **{"training.run_name": "ddp", "training.steps": 3})
     done = subprocess.run(
         [
             sys.executable,

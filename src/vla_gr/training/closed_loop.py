@@ -3,6 +3,7 @@
 At each validation rank 0 runs the (EMA) policy on ``training.eval_episodes`` fixed ``val``
 episodes (indices 0..N-1, so successive evaluations are comparable) and the other ranks
 wait; the metrics are then broadcast so every rank takes the same checkpoint decision.
+Called by ``maybe_validate`` in ``vla_gr.train``; the rollouts are ``vla_gr.evaluate``'s.
 """
 
 from __future__ import annotations

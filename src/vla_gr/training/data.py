@@ -1,4 +1,7 @@
-"""The training data: make sure the episode store exists, then train / val loaders."""
+"""The training data: make sure the episode store exists, then train / val loaders.
+
+Reads ``data/`` (store, windows); the loaders feed ``training/step.py`` from ``vla_gr.train``.
+"""
 
 from __future__ import annotations
 

@@ -1,4 +1,7 @@
-"""Run observability on rank 0: metrics.jsonl, TensorBoard, optional wandb, a progress bar."""
+"""Run observability on rank 0: metrics.jsonl, TensorBoard, optional wandb, a progress bar.
+
+Fed by the loop in ``vla_gr.train``; ``read_metrics`` reads ``metrics.jsonl`` back.
+"""
 
 from __future__ import annotations
 
