@@ -203,16 +203,11 @@ def build_policy(cfg: VLAGRConfig, normalizers: Mapping | None = None) -> VLAGRP
 
 
 def _set_up(cfg: VLAGRConfig, resolved: DictConfig, dist: DistInfo, resume_step: int | None) -> Run:
-    """Data, then the run folder (a missing dataset leaves none behind), then the model, EMA,
-    optimiser, schedule, scaler and the metrics logger."""
+    """Data, model, EMA, optimiser, schedule and scaler, then the run folder and its metrics
+    logger (a missing dataset or a bad ``training.init_from`` leaves no run folder behind)."""
     t, device = cfg.training, dist.device
     train_set, val_set = build_datasets(cfg, prepare_store(cfg, dist))
     train_loader, sampler, val_loader = build_loaders(cfg, dist, train_set, val_set)
-    run_dir = _run_dir(cfg, dist)
-    if dist.is_main:
-        run_dir.mkdir(parents=True, exist_ok=True)
-        (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(resolved))
-
     model = build_policy(cfg, train_set.get_normalizers()).to(device)
     ema = EMA(model, t.ema_decay, t.ema_warmup) if t.ema_decay > 0 else None
     betas = tuple(t.betas) if t.betas else (0.9, 0.999)
@@ -227,6 +222,10 @@ def _set_up(cfg: VLAGRConfig, resolved: DictConfig, dist: DistInfo, resume_step:
         ids = [device.index] if device.type == "cuda" else None
         train_model = DistributedDataParallel(train_model, device_ids=ids)
 
+    run_dir = _run_dir(cfg, dist)
+    if dist.is_main:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(resolved))
     n_params = sum(p.numel() for p in model.parameters())
     n_train = sum(p.numel() for p in model.parameters() if p.requires_grad)
     log.info(

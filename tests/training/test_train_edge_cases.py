@@ -6,6 +6,7 @@ import logging
 import math
 from pathlib import Path
 
+import pytest
 import torch
 
 from tests.helpers import train_overrides
@@ -71,8 +72,15 @@ def test_resume_from_a_run_folder_suggests_its_latest_checkpoint(tmp_path, caplo
     assert f"did you mean {run / 'checkpoints' / 'latest'}?" in caplog.text
 
 
-def test_a_missing_dataset_fails_before_the_run_folder_exists(tmp_path, caplog):
-    args = _args(tmp_path, **{"training.if_missing": "error"})
+@pytest.mark.parametrize(
+    ("key", "value", "named"),
+    [
+        ("training.if_missing", "error", "syn.zarr"),  # no dataset
+        ("training.init_from", "nope/checkpoints/best", "nope"),  # no init checkpoint
+    ],
+)
+def test_a_failed_set_up_leaves_no_run_folder(tmp_path, caplog, key, value, named):
+    args = _args(tmp_path, **{key: value})
     assert cli.main(["train", "--config-name", "config_debug", *args]) == 2
-    assert "does not exist" in caplog.text and "syn.zarr" in caplog.text
+    assert "does not exist" in caplog.text and named in caplog.text
     assert not (tmp_path / "runs").exists()
