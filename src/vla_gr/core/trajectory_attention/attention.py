@@ -1,10 +1,10 @@
-"""Trajectory attention: rotary positions, SDPA attention, pre-norm blocks, action queries.
+"""Attention blocks: SDPA multi-head attention with RoPE, the pre-norm ``TransformerBlock``.
 
 The building blocks of the trajectory transformer (Actra / X-VLA style) and of the
 transformer denoiser of the action heads:
 
-- :func:`apply_rope` (re-exported from :mod:`vla_gr.core.rope`) -- rotary position
-  embeddings (RoFormer): dimension pairs ``(2i, 2i+1)`` are rotated by
+- :func:`apply_rope` (from :mod:`vla_gr.core.trajectory_attention.rope`) -- rotary
+  position embeddings (RoFormer): dimension pairs ``(2i, 2i+1)`` are rotated by
   ``position * theta_i`` with ``theta_i = base ** (-2i / D)``, so ``q_m . k_n``
   depends only on ``m - n``.
 - :class:`MultiHeadAttention` -- self or cross attention on
@@ -12,11 +12,10 @@ transformer denoiser of the action heads:
   GPU) with projections named ``q_proj``, ``k_proj``, ``v_proj``, ``out_proj`` so that
   PEFT (LoRA / OFT) can target them; key padding masks, causal masks, optional RoPE.
 - :class:`TransformerBlock` -- pre-norm self-attention, optional cross-attention, MLP.
-- :class:`TrajectoryEncoder` -- learnable action queries (DETR-style) that self-attend
-  (optionally causally, for autoregressive rollout) and cross-attend to context tokens.
 
 Masks follow PyTorch's ``nn.MultiheadAttention``: ``key_padding_mask`` is bool
-``(B, S)`` with ``True`` marking padded (ignored) tokens.
+``(B, S)`` with ``True`` marking padded (ignored) tokens. Next in the data flow:
+:mod:`vla_gr.core.trajectory_attention.encoder` (action queries built from these blocks).
 """
 
 from __future__ import annotations
@@ -24,28 +23,19 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 from torch import nn
-from torch.utils.checkpoint import checkpoint
 
-from vla_gr.core.rope import (
+from vla_gr.core.trajectory_attention.rope import (
     apply_rope,
     apply_rope_complex,
-    apply_rope_cos_sin,
     apply_rope_tables,
     rope_angles,
     rope_tables,
 )
 
 __all__ = [
-    "rope_angles",
-    "apply_rope",
-    "apply_rope_cos_sin",
-    "rope_tables",
-    "apply_rope_complex",
-    "apply_rope_tables",
     "build_attention_mask",
     "MultiHeadAttention",
     "TransformerBlock",
-    "TrajectoryEncoder",
     "as_context_tokens",
 ]
 
@@ -317,125 +307,3 @@ def as_context_tokens(context: torch.Tensor, context_dim: int | None = None) -> 
     if context_dim is not None and context.shape[-1] != context_dim:
         raise ValueError(f"context has C={context.shape[-1]} but context_dim={context_dim}")
     return context
-
-
-class TrajectoryEncoder(nn.Module):
-    """Learnable action queries that self-attend and cross-attend to context tokens.
-
-    DETR-style decoding of an action chunk in one pass: ``num_action_queries``
-    learned query embeddings go through pre-norm blocks (self attention with RoPE
-    positions, optionally causal for autoregressive rollout; cross attention to the
-    context), then a linear head maps each query to an action.
-
-    Args:
-        action_dim: output action size ``A``.
-        hidden_dim: model width ``D``.
-        num_layers: number of blocks.
-        num_action_queries: maximum chunk length ``K_max``.
-        use_rope: rotary positions in the self-attention (else learned absolute
-            positions are added to the queries).
-        num_heads: attention heads.
-        causal: causal self-attention (query ``k`` only sees queries ``<= k``).
-        context_dim: width ``C`` of the context (default ``hidden_dim``).
-        mlp_ratio: MLP width multiple.
-        dropout: dropout probability.
-        gradient_checkpointing: recompute block activations in backward (saves memory).
-    """
-
-    def __init__(
-        self,
-        action_dim: int = 7,
-        hidden_dim: int = 256,
-        num_layers: int = 4,
-        num_action_queries: int = 16,
-        use_rope: bool = True,
-        num_heads: int = 4,
-        causal: bool = False,
-        context_dim: int | None = None,
-        mlp_ratio: float = 4.0,
-        dropout: float = 0.0,
-        gradient_checkpointing: bool = False,
-    ) -> None:
-        super().__init__()
-        for name, val in (
-            ("action_dim", action_dim),
-            ("hidden_dim", hidden_dim),
-            ("num_layers", num_layers),
-            ("num_action_queries", num_action_queries),
-        ):
-            if not isinstance(val, int) or val <= 0:
-                raise ValueError(f"{name}={val!r} must be a positive int")
-        context_dim = hidden_dim if context_dim is None else context_dim
-        self.action_dim, self.hidden_dim, self.context_dim = action_dim, hidden_dim, context_dim
-        self.num_action_queries, self.use_rope, self.causal = num_action_queries, use_rope, causal
-        self.gradient_checkpointing = gradient_checkpointing
-        self.queries = nn.Parameter(torch.randn(num_action_queries, hidden_dim) * 0.02)  # (K, D)
-        self.pos_embed = (
-            None
-            if use_rope
-            else nn.Parameter(torch.randn(num_action_queries, hidden_dim) * 0.02)  # (K, D)
-        )
-        self.context_proj = nn.Linear(context_dim, hidden_dim)
-        self.blocks = nn.ModuleList(
-            TransformerBlock(
-                hidden_dim, num_heads, hidden_dim, mlp_ratio, dropout, use_rope, causal
-            )
-            for _ in range(num_layers)
-        )
-        self.norm = nn.LayerNorm(hidden_dim)
-        self.action_head = nn.Linear(hidden_dim, action_dim)
-
-    def forward(
-        self,
-        context: torch.Tensor,
-        num_actions: int | None = None,
-        context_padding_mask: torch.Tensor | None = None,
-        causal: bool | None = None,
-    ) -> torch.Tensor:
-        """Decode ``num_actions`` actions from the context.
-
-        Args:
-            context: ``(B, C)`` vector or ``(B, T, C)`` tokens.
-            num_actions: chunk length ``K <= num_action_queries`` (default all queries).
-            context_padding_mask: optional bool ``(B, T)``, ``True`` = padded token.
-            causal: override the encoder's causality for this call.
-
-        Returns:
-            ``(B, K, action_dim)``.
-        """
-        K = self.num_action_queries if num_actions is None else num_actions
-        if not isinstance(K, int) or not 1 <= K <= self.num_action_queries:
-            raise ValueError(f"num_actions={K!r} must be an int in [1, {self.num_action_queries}]")
-        ctx = self.context_proj(as_context_tokens(context, self.context_dim))  # (B, T, D)
-        B = ctx.shape[0]
-        x = self.queries[:K].unsqueeze(0).expand(B, K, self.hidden_dim)  # (B, K, D)
-        if self.pos_embed is not None:
-            x = x + self.pos_embed[:K]  # (B, K, D)
-        x = self.forward_tokens(x, ctx, context_padding_mask, causal)  # (B, K, D)
-        return self.action_head(self.norm(x))  # (B, K, A)
-
-    def forward_tokens(
-        self,
-        x: torch.Tensor,
-        ctx: torch.Tensor,
-        context_padding_mask: torch.Tensor | None = None,
-        causal: bool | None = None,
-    ) -> torch.Tensor:
-        """Run the blocks on query tokens (with optional gradient checkpointing).
-
-        Args:
-            x: ``(B, K, D)`` query tokens.
-            ctx: ``(B, T, D)`` projected context tokens.
-            context_padding_mask: optional bool ``(B, T)``.
-            causal: causality override.
-
-        Returns:
-            ``(B, K, D)``.
-        """
-        use_ckpt = self.gradient_checkpointing and self.training and torch.is_grad_enabled()
-        for block in self.blocks:
-            if use_ckpt:
-                x = checkpoint(block, x, ctx, context_padding_mask, causal, use_reentrant=False)
-            else:
-                x = block(x, ctx, context_padding_mask, causal)  # (B, K, D)
-        return x

@@ -139,7 +139,7 @@ def test_ddim_eta_zero_is_a_deterministic_map_of_the_noise():
 
 def test_flow_sampler_matches_reference_integration():
     from vla_gr.core.diffusion_policy import FLOW_TIME_SCALE
-    from vla_gr.core.flow_matching import integrate_flow
+    from vla_gr.core.diffusion_policy.flow_matching import integrate_flow
 
     policy = DiffusionPolicy(2, 32, 4, objective="flow_matching", horizon=8, clip_sample=False)
     policy.eval()

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from vla_gr.core.field_maths import (
+from vla_gr.core.gr_field.physics import (
     LOG_R_UNIT_SQUARE_MEAN,
     christoffel_conformal,
     christoffel_from_metric,
@@ -20,7 +20,7 @@ from vla_gr.core.field_maths import (
     sample_bilinear,
     solve_poisson,
 )
-from vla_gr.core.gr_field import extract_path, geodesic_distance
+from vla_gr.geometry import extract_path, geodesic_distance
 
 H = 0.05  # cell size (m)
 

@@ -6,9 +6,9 @@
   Policy (Chi et al. 2023).
 - ``objective="flow_matching"`` -- pi0's conditional flow matching (straight path
   ``x_t = t * noise + (1 - t) * actions``, Beta-shaped times emphasising noise; see
-  :mod:`vla_gr.core.flow_matching`), Euler or midpoint integration.
+  :mod:`vla_gr.core.diffusion_policy.flow_matching`), Euler or midpoint integration.
 - ``objective="l1"`` -- OpenVLA-OFT's parallel-decoding L1 regression
-  (:class:`L1RegressionHead`, defined in :mod:`vla_gr.core.regression_head`): one
+  (:class:`L1RegressionHead`, defined in :mod:`vla_gr.core.diffusion_policy.regression_head`): one
   forward pass, no sampling loop.
 
 Actions are assumed normalised to ``[-1, 1]`` (``clip_sample`` clips samples there).
@@ -25,9 +25,9 @@ Sampling precomputes everything that does not depend on the noisy sample (time
 embeddings, context pooling/projection, FiLM parameters) once per chunk; only the
 denoiser's per-step trunk runs inside the loop. That trunk is
 ``denoiser.sampling_step(noise)``, asked for once per chunk: at batch 1 the U-Net gives
-a :class:`~vla_gr.core.unet_inference.UnetStepPlan` (same maths, about half the eager
-per-op overhead; built from views of the current parameters, so it can never run stale
-weights), otherwise the reference ``denoise_step``.
+a :class:`~vla_gr.core.diffusion_policy.unet_inference.UnetStepPlan` (same maths, about
+half the eager per-op overhead; built from views of the current parameters, so it can
+never run stale weights), otherwise the reference ``denoise_step``.
 """
 
 from __future__ import annotations
@@ -39,8 +39,8 @@ import torch.nn.functional as F
 from diffusers import DDIMScheduler, DDPMScheduler
 from torch import nn
 
-from vla_gr.core.denoisers import DENOISERS, ConditionalUnet1D, TransformerDenoiser
-from vla_gr.core.flow_matching import (
+from vla_gr.core.diffusion_policy.denoisers import DENOISERS, ConditionalUnet1D, TransformerDenoiser
+from vla_gr.core.diffusion_policy.flow_matching import (
     FLOW_SAMPLERS,
     euler_step,
     flow_interpolate,
@@ -49,22 +49,26 @@ from vla_gr.core.flow_matching import (
     flow_x0_from_velocity,
     sample_flow_time,
 )
-from vla_gr.core.noise_targets import PREDICTION_TYPES, diffusion_target, predicted_x0, q_sample
-from vla_gr.core.regression_head import (
+from vla_gr.core.diffusion_policy.noise_targets import (
+    PREDICTION_TYPES,
+    diffusion_target,
+    predicted_x0,
+    q_sample,
+)
+from vla_gr.core.diffusion_policy.regression_head import (
     L1RegressionHead,
     check_actions,
     check_choice,
     check_positive_int,
     ctx_mask,
 )
-from vla_gr.core.trajectory_attention import as_context_tokens
+from vla_gr.core.trajectory_attention.attention import as_context_tokens
 
 __all__ = [
     "OBJECTIVES",
     "SAMPLERS",
     "FLOW_TIME_SCALE",
     "DiffusionPolicy",
-    "L1RegressionHead",
 ]
 
 logger = logging.getLogger(__name__)

@@ -5,7 +5,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from vla_gr.core.denoisers import (
+from vla_gr.core.diffusion_policy import DiffusionPolicy
+from vla_gr.core.diffusion_policy.denoisers import (
     ConditionalUnet1D,
     FastConv1d,
     FastConvTranspose1d,
@@ -13,9 +14,12 @@ from vla_gr.core.denoisers import (
     masked_mean,
     sinusoidal_embedding,
 )
-from vla_gr.core.diffusion_policy import DiffusionPolicy
+from vla_gr.core.diffusion_policy.unet_inference import (
+    UnetStepPlan,
+    conv_selection,
+    conv_transpose_selection,
+)
 from vla_gr.core.peft_modules import apply_lora_to_model, merge_peft
-from vla_gr.core.unet_inference import UnetStepPlan, conv_selection, conv_transpose_selection
 
 
 @pytest.mark.parametrize(("k", "stride", "pad"), [(5, 1, 2), (3, 2, 1), (1, 1, 0)])

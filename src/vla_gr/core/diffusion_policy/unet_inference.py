@@ -278,7 +278,7 @@ def _conv_transpose(op: _ConvTranspose, x: torch.Tensor) -> torch.Tensor:
 
 
 class UnetStepPlan:
-    """The batch-1 sampling step of a :class:`~vla_gr.core.denoisers.ConditionalUnet1D`.
+    """The batch-1 sampling step of the 1-D conv U-Net (``ConditionalUnet1D``).
 
     Build it with :meth:`build` once per chunk (it holds views of the current
     parameters; see the module docstring) and call it once per integration step. It

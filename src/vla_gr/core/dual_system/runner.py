@@ -29,7 +29,7 @@ from typing import Any
 
 import torch
 
-from vla_gr.core.dual_system import DualSystemArchitecture
+from vla_gr.core.dual_system.architecture import DualSystemArchitecture
 
 logger = logging.getLogger(__name__)
 

@@ -29,8 +29,12 @@ import torch.nn.functional as F
 from torch import nn
 from torch.utils.checkpoint import checkpoint
 
-from vla_gr.core.trajectory_attention import TransformerBlock
-from vla_gr.core.unet_inference import FastConv1d, FastConvTranspose1d, UnetStepPlan
+from vla_gr.core.diffusion_policy.unet_inference import (
+    FastConv1d,
+    FastConvTranspose1d,
+    UnetStepPlan,
+)
+from vla_gr.core.trajectory_attention.attention import TransformerBlock
 
 __all__ = [
     "DENOISERS",
@@ -358,9 +362,10 @@ class ConditionalUnet1D(_Denoiser):
     def sampling_step(self, x: torch.Tensor) -> Callable:
         """The per-step function for a sampling loop over chunks shaped like ``x``.
 
-        At batch 1 this is a :class:`~vla_gr.core.unet_inference.UnetStepPlan` (same
-        maths, about half the per-op overhead), built now from views of the current
-        parameters, so call it once per chunk; otherwise (or for modules it does not
+        At batch 1 this is a
+        :class:`~vla_gr.core.diffusion_policy.unet_inference.UnetStepPlan` (same maths,
+        about half the per-op overhead), built now from views of the current parameters,
+        so call it once per chunk; otherwise (or for modules it does not
         know, e.g. convs wrapped by unmerged LoRA) :meth:`denoise_step`.
 
         Args:

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from vla_gr.core.field_map import FREE_HITS, GOAL_SUM, OCC_HITS, POINT_HITS
 from vla_gr.core.gr_field import FEATURE_NAMES, GRField, GRFieldConfig, snap_start
+from vla_gr.core.gr_field.mapping import FREE_HITS, GOAL_SUM, OCC_HITS, POINT_HITS
 from vla_gr.geometry.camera import ego_to_world, intrinsics_from_hfov
 
 HFOV, CAM_H, N = 79.0, 0.88, 64

@@ -2,7 +2,7 @@
 
 One :meth:`GRField.update` per planner tick:
 
-1. depth + pose -> map-frame points -> allocentric evidence map (``field_map``);
+1. depth + pose -> map-frame points -> allocentric evidence map (:mod:`.mapping`);
 2. masses: goal (attractive), frontier (attractive, so an unseen goal still explores) and
    obstacles (negative density), ``rho`` (B, H, W);
 3. potential ``phi`` from the Poisson equation with free-space boundaries;
@@ -27,38 +27,25 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from vla_gr.core.field_map import centred_grid, empty_map, map_layers, update_map
-from vla_gr.core.field_maths import (
+from vla_gr.core.gr_field.config import FEATURE_NAMES, GRFieldConfig
+from vla_gr.core.gr_field.mapping import centred_grid, empty_map, map_layers, update_map
+from vla_gr.core.gr_field.physics import (
     christoffel_conformal,
     conformal_log_factor,
     dilate_square,
     frontier_mask,
-    integrate_geodesic,
     normalise_mass,
     obstacle_proximity,
     solve_poisson,
 )
-from vla_gr.core.field_render import render_field
-from vla_gr.core.gr_field_config import FEATURE_NAMES, GRFieldConfig
+from vla_gr.core.gr_field.picture import render_field
 from vla_gr.geometry.camera import ego_to_world, project_depth, world_to_ego
 from vla_gr.geometry.fast_marching import extract_path, geodesic_distance, upwind_gradient
 from vla_gr.geometry.grid import inflate_obstacles
 
 logger = logging.getLogger(__name__)
 
-__all__ = [
-    "FEATURE_NAMES",
-    "GRField",
-    "GRFieldConfig",
-    "GRFieldOutput",
-    "christoffel_conformal",
-    "extract_path",
-    "geodesic_distance",
-    "integrate_geodesic",
-    "project_depth",
-    "solve_poisson",
-    "update_map",
-]
+__all__ = ["GRField", "GRFieldOutput", "snap_start"]
 
 
 def snap_start(travel: np.ndarray, xy: np.ndarray, cell_size: float, radius: float):

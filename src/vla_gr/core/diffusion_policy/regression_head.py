@@ -11,7 +11,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from vla_gr.core.trajectory_attention import TrajectoryEncoder, as_context_tokens
+from vla_gr.core.trajectory_attention.attention import as_context_tokens
+from vla_gr.core.trajectory_attention.encoder import TrajectoryEncoder
 
 __all__ = ["L1RegressionHead", "check_actions", "check_choice", "check_positive_int", "ctx_mask"]
 

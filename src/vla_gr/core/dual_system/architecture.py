@@ -13,7 +13,7 @@ Timeline of :meth:`DualSystemArchitecture.forward` in eval mode with
 
 In training mode S2 runs on every call so that gradients reach the planner.
 The threaded, non-blocking version of the same schedule is
-:class:`vla_gr.core.realtime.DualSystemRunner`.
+:class:`vla_gr.core.dual_system.runner.DualSystemRunner`.
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ from vla_gr.core.dual_system import (
     gate_actions,
     plan_interval,
 )
-from vla_gr.core.realtime import DualSystemRunner, LatestSlot
+from vla_gr.core.dual_system.runner import DualSystemRunner, LatestSlot
 
 
 def small_model(**kw) -> DualSystemArchitecture:

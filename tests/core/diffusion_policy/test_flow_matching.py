@@ -6,7 +6,7 @@ import pytest
 import torch
 from diffusers import DDIMScheduler, DDPMScheduler
 
-from vla_gr.core.flow_matching import (
+from vla_gr.core.diffusion_policy.flow_matching import (
     euler_step,
     flow_interpolate,
     flow_target,
@@ -16,7 +16,7 @@ from vla_gr.core.flow_matching import (
     midpoint_step,
     sample_flow_time,
 )
-from vla_gr.core.noise_targets import diffusion_target, predicted_x0, q_sample
+from vla_gr.core.diffusion_policy.noise_targets import diffusion_target, predicted_x0, q_sample
 
 
 def _known():
