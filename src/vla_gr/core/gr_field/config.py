@@ -1,8 +1,20 @@
-"""Configuration of the GR field and the channel order of its egocentric features."""
+"""``GRFieldConfig`` (recipe key ``model.gr_field``) and the channels of the field's features.
+
+Sensor and robot geometry default from :mod:`vla_gr.geometry.robot_spec`. Next in the data
+flow: :mod:`vla_gr.core.gr_field.mapping`.
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+from vla_gr.geometry.robot_spec import (
+    CAMERA_HEIGHT,
+    HFOV_DEG,
+    MAX_DEPTH,
+    MIN_DEPTH,
+    ROBOT_RADIUS,
+)
 
 #: Channels of the egocentric feature tensor, in order.
 FEATURE_NAMES: tuple[str, ...] = (
@@ -24,14 +36,14 @@ class GRFieldConfig:
 
     map_size: int = 192  # cells per side of the allocentric map, centred on the episode start
     cell_size: float = 0.15  # metres per cell
-    hfov_deg: float = 79.0
-    camera_height: float = 0.88
+    hfov_deg: float = HFOV_DEG
+    camera_height: float = CAMERA_HEIGHT
     camera_forward_offset: float = 0.0
-    min_depth: float = 0.05
-    max_depth: float = 10.0
+    min_depth: float = MIN_DEPTH
+    max_depth: float = MAX_DEPTH
     floor_height: float = 0.1  # points below are floor
     robot_height: float = 1.2  # points above are ignored for occupancy
-    robot_radius: float = 0.18
+    robot_radius: float = ROBOT_RADIUS
     goal_threshold: float = 0.5  # mean likelihood for a cell to count as goal
     G: float = 1.0
     goal_mass: float = 1.0

@@ -19,6 +19,7 @@ import math
 import torch
 
 from vla_gr.geometry.grid import GridSpec
+from vla_gr.geometry.robot_spec import ROBOT_RADIUS
 
 OCC_HITS, FREE_HITS, GOAL_SUM, POINT_HITS = range(4)
 NUM_MAP_CHANNELS = 4
@@ -122,7 +123,7 @@ def update_map(
     camera_xy: torch.Tensor | None = None,
     floor_height: float = 0.1,
     max_height: float = 1.2,
-    robot_radius: float = 0.18,
+    robot_radius: float = ROBOT_RADIUS,
 ) -> torch.Tensor:
     """Accumulate one batch of views into the evidence map ``state`` (in place; also returned).
 
