@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from vla_gr.configs.validation import check_choice, check_positive
+from vla_gr.validation import check_choice, check_positive
 
 TEXT_ENCODERS = ("hashed", "minilm")
 VISION_POOLS = ("grid", "spatial_softmax")

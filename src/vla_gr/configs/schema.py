@@ -13,7 +13,7 @@ from hydra.core.config_store import ConfigStore
 
 from vla_gr.configs.model_schema import ModelConfig
 from vla_gr.configs.training_schema import LoggingConfig, TrainingConfig
-from vla_gr.configs.validation import check_choice, check_positive
+from vla_gr.validation import check_choice, check_positive
 
 SPLITS = ("train", "val", "test")
 

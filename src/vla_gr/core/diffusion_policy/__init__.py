@@ -1,19 +1,21 @@
 """The action head: context tokens -> action chunks ``(B, H, A)``.
 
-Data flow: :mod:`.head` (``DiffusionPolicy``: training loss and sampling loop) uses the
-pure maths of :mod:`.flow_matching` (pi0 flow matching) and :mod:`.noise_targets` (DDPM
-targets), a denoiser from :mod:`.denoisers` (1-D U-Net or transformer; the U-Net's
-batch-1 step plan is :mod:`.unet_inference`), or the one-pass L1 head of
-:mod:`.regression_head`.
+Data flow: :mod:`.config` (``HeadConfig``, the option lists) -> :mod:`.head`
+(``DiffusionPolicy``: training loss and sampling loop), which uses the pure maths of
+:mod:`.flow_matching` (pi0 flow matching) and :mod:`.noise_targets` (DDPM targets), a
+denoiser from :mod:`.denoisers` (1-D U-Net or transformer; the U-Net's batch-1 step plan
+is :mod:`.unet_inference`), or the one-pass L1 head of :mod:`.regression_head`.
 """
 
-from vla_gr.core.diffusion_policy.denoisers import (
+from vla_gr.core.diffusion_policy.config import (
     DENOISERS,
-    ConditionalUnet1D,
-    TransformerDenoiser,
+    OBJECTIVES,
+    PREDICTION_TYPES,
+    SAMPLERS,
+    HeadConfig,
 )
-from vla_gr.core.diffusion_policy.head import FLOW_TIME_SCALE, OBJECTIVES, SAMPLERS, DiffusionPolicy
-from vla_gr.core.diffusion_policy.noise_targets import PREDICTION_TYPES
+from vla_gr.core.diffusion_policy.denoisers import ConditionalUnet1D, TransformerDenoiser
+from vla_gr.core.diffusion_policy.head import FLOW_TIME_SCALE, DiffusionPolicy
 from vla_gr.core.diffusion_policy.regression_head import L1RegressionHead
 
 __all__ = [
@@ -24,6 +26,7 @@ __all__ = [
     "SAMPLERS",
     "ConditionalUnet1D",
     "DiffusionPolicy",
+    "HeadConfig",
     "L1RegressionHead",
     "TransformerDenoiser",
 ]

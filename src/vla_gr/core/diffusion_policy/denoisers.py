@@ -37,15 +37,12 @@ from vla_gr.core.diffusion_policy.unet_inference import (
 from vla_gr.core.trajectory_attention.attention import TransformerBlock
 
 __all__ = [
-    "DENOISERS",
     "sinusoidal_embedding",
     "masked_mean",
     "ConditionalResidualBlock1D",
     "ConditionalUnet1D",
     "TransformerDenoiser",
 ]
-
-DENOISERS = ("unet1d", "transformer")
 
 
 def sinusoidal_embedding(timesteps: torch.Tensor, dim: int) -> torch.Tensor:

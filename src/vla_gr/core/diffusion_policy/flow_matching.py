@@ -22,8 +22,10 @@ from collections.abc import Callable
 
 import torch
 
+from vla_gr.core.diffusion_policy.config import FLOW_SAMPLERS
+from vla_gr.validation import check_choice
+
 __all__ = [
-    "FLOW_SAMPLERS",
     "sample_flow_time",
     "flow_interpolate",
     "flow_target",
@@ -33,8 +35,6 @@ __all__ = [
     "integrate_flow",
     "flow_time_grid",
 ]
-
-FLOW_SAMPLERS = ("euler", "midpoint")
 
 
 def sample_flow_time(
@@ -184,8 +184,7 @@ def integrate_flow(
     Returns:
         ``(B, H, A)`` state at ``t = 0``.
     """
-    if method not in FLOW_SAMPLERS:
-        raise ValueError(f"method={method!r} is not valid; choose one of {list(FLOW_SAMPLERS)}")
+    check_choice("method", method, FLOW_SAMPLERS)
     times = flow_time_grid(num_steps, x_init.device)  # (N + 1,)
     dt = times[1] - times[0]  # scalar, = -1/N
     x = x_init

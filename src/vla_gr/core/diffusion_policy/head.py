@@ -39,9 +39,9 @@ import torch.nn.functional as F
 from diffusers import DDIMScheduler, DDPMScheduler
 from torch import nn
 
-from vla_gr.core.diffusion_policy.denoisers import DENOISERS, ConditionalUnet1D, TransformerDenoiser
+from vla_gr.core.diffusion_policy.config import SAMPLERS, HeadConfig
+from vla_gr.core.diffusion_policy.denoisers import ConditionalUnet1D, TransformerDenoiser
 from vla_gr.core.diffusion_policy.flow_matching import (
-    FLOW_SAMPLERS,
     euler_step,
     flow_interpolate,
     flow_target,
@@ -50,7 +50,6 @@ from vla_gr.core.diffusion_policy.flow_matching import (
     sample_flow_time,
 )
 from vla_gr.core.diffusion_policy.noise_targets import (
-    PREDICTION_TYPES,
     diffusion_target,
     predicted_x0,
     q_sample,
@@ -58,25 +57,15 @@ from vla_gr.core.diffusion_policy.noise_targets import (
 from vla_gr.core.diffusion_policy.regression_head import (
     L1RegressionHead,
     check_actions,
-    check_choice,
-    check_positive_int,
     ctx_mask,
 )
 from vla_gr.core.trajectory_attention.attention import as_context_tokens
+from vla_gr.validation import check_choice, check_positive_int
 
-__all__ = [
-    "OBJECTIVES",
-    "SAMPLERS",
-    "FLOW_TIME_SCALE",
-    "DiffusionPolicy",
-]
+__all__ = ["FLOW_TIME_SCALE", "DiffusionPolicy"]
 
 logger = logging.getLogger(__name__)
 
-OBJECTIVES = ("diffusion", "flow_matching", "l1")
-DIFFUSION_SAMPLERS = ("ddim", "ddpm")
-SAMPLERS = {"diffusion": DIFFUSION_SAMPLERS, "flow_matching": FLOW_SAMPLERS, "l1": ()}
-BETA_SCHEDULES = ("squaredcos_cap_v2", "linear", "scaled_linear", "sigmoid")
 # Flow times t in [0, 1] are fed to the denoiser as t * 1000 (as diffusers' flow-matching
 # schedulers do), so the sinusoidal time embedding resolves them like diffusion steps.
 FLOW_TIME_SCALE = 1000.0
@@ -85,137 +74,79 @@ FLOW_TIME_SCALE = 1000.0
 class DiffusionPolicy(nn.Module):
     """Diffusion / flow-matching / L1 action head with the seed's interface.
 
-    Args:
-        action_dim: action size ``A``.
-        hidden_dim: widest feature size of the denoiser: transformer width, or the
-            deepest U-Net level (``down_dims = (D/4, D/2, D)`` unless given).
-        context_dim: context width ``C`` (default ``hidden_dim``).
-        num_diffusion_steps: DDPM training steps ``N``.
-        prediction_type: ``"v_prediction"``, ``"epsilon"`` or ``"sample"`` (diffusion).
-        objective: ``"diffusion"``, ``"flow_matching"`` or ``"l1"``.
-        horizon: chunk length ``H`` (8--32 typical; any ``>= 1`` works).
-        denoiser: ``"unet1d"`` (conv U-Net with FiLM) or ``"transformer"``.
-        num_layers: transformer blocks (transformer denoiser and L1 head).
-        num_heads: attention heads.
-        mlp_ratio: transformer MLP width as a multiple of ``hidden_dim``.
-        down_dims: U-Net channels per level (overrides the ``hidden_dim`` rule).
-        kernel_size: U-Net temporal kernel.
-        n_groups: U-Net GroupNorm groups.
-        time_embed_dim: U-Net time embedding size (default ``hidden_dim // 2``).
-        beta_schedule: diffusers beta schedule (``squaredcos_cap_v2`` as Diffusion Policy).
-        clip_sample: clip samples to ``[-1, 1]`` (normalised actions).
-        flow_beta_alpha: ``alpha`` of pi0's ``Beta(alpha, 1)`` flow time distribution.
-        flow_time_scale: pi0's ``s``: times lie in ``[1 - s, 1]``.
-        dropout: dropout probability (transformer parts).
-        gradient_checkpointing: recompute denoiser blocks in backward (8 GB GPUs).
-        default_sampler: sampler when ``get_action`` gets none (``ddim`` / ``euler``).
+    Built from a :class:`~vla_gr.core.diffusion_policy.config.HeadConfig` (every setting
+    and its default live there): ``DiffusionPolicy(config=HeadConfig(...))``, or with the
+    seed's keywords, which fill one: ``DiffusionPolicy(action_dim, hidden_dim, context_dim,
+    num_diffusion_steps, prediction_type, objective=..., horizon=..., ...)``.
     """
 
-    def __init__(
-        self,
-        action_dim: int = 7,
-        hidden_dim: int = 256,
-        context_dim: int | None = None,
-        num_diffusion_steps: int = 100,
-        prediction_type: str = "v_prediction",
-        objective: str = "diffusion",
-        horizon: int = 16,
-        denoiser: str = "unet1d",
-        num_layers: int = 4,
-        num_heads: int = 4,
-        mlp_ratio: float = 4.0,
-        down_dims: tuple[int, ...] | None = None,
-        kernel_size: int = 5,
-        n_groups: int = 8,
-        time_embed_dim: int | None = None,
-        beta_schedule: str = "squaredcos_cap_v2",
-        clip_sample: bool = True,
-        flow_beta_alpha: float = 1.5,
-        flow_time_scale: float = 0.999,
-        dropout: float = 0.0,
-        gradient_checkpointing: bool = False,
-        default_sampler: str | None = None,
-    ) -> None:
+    def __init__(self, *args, config: HeadConfig | None = None, **kwargs) -> None:
         super().__init__()
-        check_choice("objective", objective, OBJECTIVES)
-        check_choice("prediction_type", prediction_type, PREDICTION_TYPES)
-        check_choice("denoiser", denoiser, DENOISERS)
-        check_choice("beta_schedule", beta_schedule, BETA_SCHEDULES)
-        for name, val in (
-            ("action_dim", action_dim),
-            ("hidden_dim", hidden_dim),
-            ("num_diffusion_steps", num_diffusion_steps),
-            ("horizon", horizon),
-            ("num_layers", num_layers),
-        ):
-            check_positive_int(name, val)
-        if context_dim is not None:
-            check_positive_int("context_dim", context_dim)
-        if flow_beta_alpha <= 0:
-            raise ValueError(f"flow_beta_alpha={flow_beta_alpha} must be > 0")
-        if not 0.0 < flow_time_scale <= 1.0:
-            raise ValueError(f"flow_time_scale={flow_time_scale} must be in (0, 1]")
-        self.action_dim, self.hidden_dim, self.horizon = action_dim, hidden_dim, horizon
-        self.context_dim = hidden_dim if context_dim is None else context_dim
-        self.num_diffusion_steps, self.prediction_type = num_diffusion_steps, prediction_type
-        self.objective, self.denoiser_type, self.clip_sample = objective, denoiser, clip_sample
-        self.flow_beta_alpha, self.flow_time_scale = flow_beta_alpha, flow_time_scale
-        samplers = SAMPLERS[objective]
-        if default_sampler is None:
-            default_sampler = samplers[0] if samplers else None
-        elif objective != "l1":
-            check_choice("default_sampler", default_sampler, samplers)
-        self.default_sampler = default_sampler
+        if config is None:
+            config = HeadConfig(*args, **kwargs)
+        elif args or kwargs:
+            raise ValueError("pass either a HeadConfig or keyword arguments, not both")
+        self.config = c = config
+        self.action_dim, self.hidden_dim, self.horizon = c.action_dim, c.hidden_dim, c.horizon
+        self.context_dim = c.resolved_context_dim
+        self.num_diffusion_steps, self.prediction_type = c.num_diffusion_steps, c.prediction_type
+        self.objective, self.denoiser_type, self.clip_sample = (
+            c.objective,
+            c.denoiser,
+            c.clip_sample,
+        )
+        self.flow_beta_alpha, self.flow_time_scale = c.flow_beta_alpha, c.flow_time_scale
+        self.default_sampler = c.resolved_sampler
 
         self.head: L1RegressionHead | None = None
         self.denoiser: nn.Module | None = None
         self._compiled_step = None  # set by compile_sampler()
-        if objective == "l1":
+        if c.objective == "l1":
             self.head = L1RegressionHead(
-                action_dim,
-                hidden_dim,
+                c.action_dim,
+                c.hidden_dim,
                 self.context_dim,
-                horizon,
-                num_layers,
-                num_heads,
-                dropout,
-                clip_sample,
-                gradient_checkpointing,
-                mlp_ratio,
+                c.horizon,
+                c.num_layers,
+                c.num_heads,
+                c.dropout,
+                c.clip_sample,
+                c.gradient_checkpointing,
+                c.mlp_ratio,
             )
             return
-        if denoiser == "unet1d":
+        if c.denoiser == "unet1d":
+            down_dims = c.down_dims
             if down_dims is None:  # (D/4, D/2, D), rounded to multiples of n_groups
-                down_dims = tuple(
-                    max(n_groups, (hidden_dim // f) // n_groups * n_groups) for f in (4, 2, 1)
-                )
+                g = c.n_groups
+                down_dims = [max(g, (c.hidden_dim // f) // g * g) for f in (4, 2, 1)]
             self.denoiser = ConditionalUnet1D(
-                action_dim,
+                c.action_dim,
                 self.context_dim,
                 tuple(down_dims),
-                time_embed_dim or max(hidden_dim // 4 * 2, 4),  # even, ~hidden_dim / 2
-                kernel_size,
-                n_groups,
-                gradient_checkpointing,
+                c.time_embed_dim or max(c.hidden_dim // 4 * 2, 4),  # even, ~hidden_dim / 2
+                c.kernel_size,
+                c.n_groups,
+                c.gradient_checkpointing,
             )
         else:
             self.denoiser = TransformerDenoiser(
-                action_dim,
+                c.action_dim,
                 self.context_dim,
-                hidden_dim,
-                num_layers,
-                num_heads,
-                mlp_ratio=mlp_ratio,
-                dropout=dropout,
-                gradient_checkpointing=gradient_checkpointing,
+                c.hidden_dim,
+                c.num_layers,
+                c.num_heads,
+                mlp_ratio=c.mlp_ratio,
+                dropout=c.dropout,
+                gradient_checkpointing=c.gradient_checkpointing,
             )
-        if objective == "diffusion":
+        if c.objective == "diffusion":
             cfg = dict(
-                num_train_timesteps=num_diffusion_steps,
-                beta_schedule=beta_schedule,
-                clip_sample=clip_sample,
+                num_train_timesteps=c.num_diffusion_steps,
+                beta_schedule=c.beta_schedule,
+                clip_sample=c.clip_sample,
                 clip_sample_range=1.0,
-                prediction_type=prediction_type,
+                prediction_type=c.prediction_type,
                 timestep_spacing="trailing",
             )
             self.ddpm = DDPMScheduler(**cfg)
@@ -224,8 +155,8 @@ class DiffusionPolicy(nn.Module):
             self.register_buffer("alphas_cumprod", acp, persistent=False)
         logger.debug(
             "DiffusionPolicy(objective=%s, denoiser=%s): %d parameters",
-            objective,
-            denoiser,
+            c.objective,
+            c.denoiser,
             sum(p.numel() for p in self.parameters()),
         )
 
@@ -319,7 +250,7 @@ class DiffusionPolicy(nn.Module):
     def get_action(
         self,
         context: torch.Tensor,
-        num_inference_steps: int = 10,
+        num_inference_steps: int | None = None,
         sampler: str | None = None,
         generator: torch.Generator | None = None,
         context_padding_mask: torch.Tensor | None = None,
@@ -330,7 +261,8 @@ class DiffusionPolicy(nn.Module):
 
         Args:
             context: ``(B, C)`` or ``(B, T, C)``.
-            num_inference_steps: denoising / integration steps (ignored by ``l1``).
+            num_inference_steps: denoising / integration steps (ignored by ``l1``);
+                default ``config.num_inference_steps``.
             sampler: ``"ddim"`` | ``"ddpm"`` (diffusion), ``"euler"`` | ``"midpoint"``
                 (flow matching); default ``default_sampler``.
             generator: RNG for the initial noise (and DDPM / DDIM ``eta > 0`` noise).
@@ -354,7 +286,7 @@ class DiffusionPolicy(nn.Module):
     def _get_action(
         self,
         context: torch.Tensor,
-        num_inference_steps: int,
+        num_inference_steps: int | None,
         sampler: str | None,
         generator: torch.Generator | None,
         context_padding_mask: torch.Tensor | None,
@@ -363,6 +295,8 @@ class DiffusionPolicy(nn.Module):
     ) -> torch.Tensor:
         """Body of :meth:`get_action` (runs under ``torch.inference_mode``)."""
         sampler = self.default_sampler if sampler is None else sampler
+        if num_inference_steps is None:
+            num_inference_steps = self.config.num_inference_steps
         check_choice("sampler", sampler, SAMPLERS[self.objective])
         check_positive_int("num_inference_steps", num_inference_steps)
         ctx = as_context_tokens(context, self.context_dim)  # (B, T, C)

@@ -19,15 +19,15 @@ from __future__ import annotations
 
 import torch
 
+from vla_gr.core.diffusion_policy.config import PREDICTION_TYPES
+from vla_gr.validation import check_choice
+
 __all__ = [
-    "PREDICTION_TYPES",
     "gather_alpha_bar",
     "q_sample",
     "diffusion_target",
     "predicted_x0",
 ]
-
-PREDICTION_TYPES = ("epsilon", "v_prediction", "sample")
 
 
 def gather_alpha_bar(
@@ -84,16 +84,13 @@ def diffusion_target(
     Returns:
         ``(B, H, A)``.
     """
+    check_choice("prediction_type", prediction_type, PREDICTION_TYPES)
     if prediction_type == "epsilon":
         return noise
     if prediction_type == "sample":
         return x0
-    if prediction_type == "v_prediction":
-        ab = gather_alpha_bar(alphas_cumprod, timesteps, x0.dim()).to(x0.dtype)  # (B, 1, 1)
-        return ab.sqrt() * noise - (1.0 - ab).sqrt() * x0
-    raise ValueError(
-        f"prediction_type={prediction_type!r} is not valid; choose one of {list(PREDICTION_TYPES)}"
-    )
+    ab = gather_alpha_bar(alphas_cumprod, timesteps, x0.dim()).to(x0.dtype)  # (B, 1, 1)
+    return ab.sqrt() * noise - (1.0 - ab).sqrt() * x0  # v_prediction
 
 
 def predicted_x0(
@@ -115,13 +112,10 @@ def predicted_x0(
     Returns:
         ``(B, H, A)``.
     """
+    check_choice("prediction_type", prediction_type, PREDICTION_TYPES)
     ab = gather_alpha_bar(alphas_cumprod, timesteps, x_t.dim()).to(x_t.dtype)  # (B, 1, 1)
     if prediction_type == "epsilon":
         return (x_t - (1.0 - ab).sqrt() * model_output) / ab.sqrt()
     if prediction_type == "sample":
         return model_output
-    if prediction_type == "v_prediction":
-        return ab.sqrt() * x_t - (1.0 - ab).sqrt() * model_output
-    raise ValueError(
-        f"prediction_type={prediction_type!r} is not valid; choose one of {list(PREDICTION_TYPES)}"
-    )
+    return ab.sqrt() * x_t - (1.0 - ab).sqrt() * model_output  # v_prediction

@@ -13,20 +13,9 @@ from torch import nn
 
 from vla_gr.core.trajectory_attention.attention import as_context_tokens
 from vla_gr.core.trajectory_attention.encoder import TrajectoryEncoder
+from vla_gr.validation import check_positive_int
 
-__all__ = ["L1RegressionHead", "check_actions", "check_choice", "check_positive_int", "ctx_mask"]
-
-
-def check_choice(name: str, value, choices) -> None:
-    """Raise ValueError naming ``name`` and the valid ``choices``."""
-    if value not in choices:
-        raise ValueError(f"{name}={value!r} is not valid; choose one of {list(choices)}")
-
-
-def check_positive_int(name: str, value) -> None:
-    """Raise ValueError naming ``name`` unless ``value`` is an int > 0."""
-    if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-        raise ValueError(f"{name}={value!r} must be a positive int")
+__all__ = ["L1RegressionHead", "check_actions", "ctx_mask"]
 
 
 def check_actions(actions: torch.Tensor, horizon: int, action_dim: int) -> None:

@@ -24,6 +24,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from vla_gr.validation import check_choice, check_positive_int
+
 logger = logging.getLogger(__name__)
 
 GATES = ("confidence", "learned")
@@ -198,8 +200,7 @@ class S1Controller(nn.Module):
         dropout: float = 0.0,
     ) -> None:
         super().__init__()
-        if gate not in GATES:
-            raise ValueError(f"gate={gate!r} is not valid; choose one of {list(GATES)}")
+        check_choice("gate", gate, GATES)
         self.gate = gate
         self.visual_proj = nn.Sequential(
             nn.LayerNorm(visual_dim), nn.Linear(visual_dim, hidden_dim)
@@ -303,8 +304,7 @@ class DualSystemArchitecture(nn.Module):
             ("s1_num_layers", s1_num_layers),
             ("s2_num_layers", s2_num_layers),
         ):
-            if not (isinstance(value, int) and value > 0):
-                raise ValueError(f"{key}={value!r} must be a positive int")
+            check_positive_int(key, value)
         if num_subgoals < 0:
             raise ValueError(f"num_subgoals={num_subgoals!r} must be >= 0")
         if not 0.0 <= dropout < 1.0:

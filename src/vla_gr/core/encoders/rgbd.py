@@ -13,7 +13,11 @@ import torch.nn.functional as F
 from torch import nn
 from torch.utils.checkpoint import checkpoint
 
-__all__ = ["spatial_softmax", "RGBDEncoder"]
+from vla_gr.validation import check_choice
+
+__all__ = ["VISION_POOLS", "spatial_softmax", "RGBDEncoder"]
+
+VISION_POOLS = ("grid", "spatial_softmax")
 
 
 def spatial_softmax(features: torch.Tensor, temperature: float = 1.0) -> torch.Tensor:
@@ -80,10 +84,7 @@ class RGBDEncoder(nn.Module):
         gradient_checkpointing: bool = False,
     ) -> None:
         super().__init__()
-        if pool not in ("grid", "spatial_softmax"):
-            raise ValueError(
-                f"pool={pool!r} is not valid; choose one of ['grid', 'spatial_softmax']"
-            )
+        check_choice("pool", pool, VISION_POOLS)
         if not channels:
             raise ValueError("channels must name at least one stage width")
         self.pool, self.num_tokens, self.max_depth = pool, num_tokens, max_depth

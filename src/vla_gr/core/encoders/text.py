@@ -22,9 +22,12 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from vla_gr.validation import check_choice
+
 log = logging.getLogger(__name__)
 
 __all__ = [
+    "TEXT_ENCODERS",
     "hash_instruction",
     "mean_pool",
     "HashedTextEncoder",
@@ -34,6 +37,7 @@ __all__ = [
 ]
 
 _WORD = re.compile(r"[a-z0-9]+")
+TEXT_ENCODERS = ("hashed", "minilm")
 
 
 def hash_instruction(text: str, buckets: int) -> list[int]:
@@ -149,8 +153,7 @@ class SentenceTextEncoder(nn.Module):
 
 def build_text_encoder(kind: str, dim: int, buckets: int = 4096) -> nn.Module:
     """``"hashed"`` -> :class:`HashedTextEncoder`; ``"minilm"`` -> :class:`SentenceTextEncoder`."""
+    check_choice("text encoder", kind, TEXT_ENCODERS)
     if kind == "hashed":
         return HashedTextEncoder(dim, buckets)
-    if kind == "minilm":
-        return SentenceTextEncoder(dim)
-    raise ValueError(f"text encoder {kind!r} is not valid; choose one of ['hashed', 'minilm']")
+    return SentenceTextEncoder(dim)

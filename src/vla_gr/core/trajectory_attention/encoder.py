@@ -13,6 +13,7 @@ from torch import nn
 from torch.utils.checkpoint import checkpoint
 
 from vla_gr.core.trajectory_attention.attention import TransformerBlock, as_context_tokens
+from vla_gr.validation import check_positive_int
 
 __all__ = ["TrajectoryEncoder"]
 
@@ -61,8 +62,7 @@ class TrajectoryEncoder(nn.Module):
             ("num_layers", num_layers),
             ("num_action_queries", num_action_queries),
         ):
-            if not isinstance(val, int) or val <= 0:
-                raise ValueError(f"{name}={val!r} must be a positive int")
+            check_positive_int(name, val)
         context_dim = hidden_dim if context_dim is None else context_dim
         self.action_dim, self.hidden_dim, self.context_dim = action_dim, hidden_dim, context_dim
         self.num_action_queries, self.use_rope, self.causal = num_action_queries, use_rope, causal
