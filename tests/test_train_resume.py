@@ -126,7 +126,7 @@ def test_debug_preset_trains_and_resumes_through_the_cli(tmp_path):
             *args,
             f"training.resume={resume}",
             "training.steps=5",
-            "model.dim=64",
+            "model.encoders.dim=64",
         ]
     )
     assert code == 2
@@ -169,7 +169,8 @@ def test_every_shipped_config_composes_and_validates(name):
 
 def test_recipe_specifics():
     _, rtx = load_config("config_rtx4060")
-    assert rtx.training.amp == "fp16" and rtx.model.gradient_checkpointing
+    assert rtx.training.amp == "fp16" and rtx.model.head.gradient_checkpointing
+    assert rtx.model.encoders.gradient_checkpointing
     assert rtx.training.batch_size * rtx.training.grad_accum == 32
     _, server = load_config("config_server")
     assert server.training.amp == "bf16" and server.training.compile
@@ -198,7 +199,7 @@ def test_seed_overrides_work_verbatim(method):
         ("model.peft.method=prefix", "model.peft.method"),
         ("training.grad_accum=0", "training.grad_accum"),
         ("model.n_action_steps=99", "model.n_action_steps"),
-        ("model.sampler=ddim", "model.sampler"),
+        ("model.head.sampler=ddim", "model.head.sampler"),
     ],
 )
 def test_invalid_values_fail_naming_the_key(override, key):

@@ -24,11 +24,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from vla_gr.validation import check_choice, check_positive_int
+from vla_gr.core.dual_system.config import GATES, DualSystemConfig
+from vla_gr.validation import check_choice
 
 logger = logging.getLogger(__name__)
-
-GATES = ("confidence", "learned")
 
 
 # --------------------------------------------------------------------------- pure maths
@@ -261,78 +260,44 @@ class S1Controller(nn.Module):
 class DualSystemArchitecture(nn.Module):
     """S2 planner + S1 controller with S2 cached between planning ticks.
 
-    Args:
-        visual_dim: width of the visual features given to S1.
-        vlm_dim: width of the vision-language features given to S2.
-        s1_hidden_dim: S1 trunk width (S1 stays <= 2 M parameters at the defaults).
-        s2_hidden_dim: S2 transformer width.
-        planning_frequency_hz: S2 rate; ``control / planning`` (rounded) calls per plan.
-        control_frequency_hz: S1 rate (one forward call per control tick).
-        action_dim: action width. proprio_dim: proprioception width.
-        goal_dim: latent goal width (default ``s1_hidden_dim``).
-        num_subgoals: sub-goal tokens emitted by S2 (0 disables them).
-        s1_num_layers, s2_num_layers, s2_num_heads, dropout: sizes.
-        gate: ``"confidence"`` (action = c * goal + (1 - c) * reactive) or ``"learned"``.
+    Built from a :class:`~vla_gr.core.dual_system.config.DualSystemConfig` (every setting and
+    its default live there), or with the seed's call, which fills one:
+    ``DualSystemArchitecture(visual_dim, vlm_dim, s1_hidden_dim, s2_hidden_dim,
+    planning_frequency_hz, control_frequency_hz, ...)``. S2 runs every
+    ``round(control / planning)`` calls.
     """
 
-    def __init__(
-        self,
-        visual_dim: int = 512,
-        vlm_dim: int = 768,
-        s1_hidden_dim: int = 256,
-        s2_hidden_dim: int = 512,
-        planning_frequency_hz: float = 2.0,
-        control_frequency_hz: float = 20.0,
-        action_dim: int = 7,
-        proprio_dim: int = 7,
-        goal_dim: int | None = None,
-        num_subgoals: int = 4,
-        s1_num_layers: int = 2,
-        s2_num_layers: int = 2,
-        s2_num_heads: int = 8,
-        dropout: float = 0.0,
-        gate: str = "confidence",
-    ) -> None:
+    def __init__(self, *args, config: DualSystemConfig | None = None, **kwargs) -> None:
         super().__init__()
-        for key, value in (
-            ("visual_dim", visual_dim),
-            ("vlm_dim", vlm_dim),
-            ("s1_hidden_dim", s1_hidden_dim),
-            ("s2_hidden_dim", s2_hidden_dim),
-            ("action_dim", action_dim),
-            ("proprio_dim", proprio_dim),
-            ("s1_num_layers", s1_num_layers),
-            ("s2_num_layers", s2_num_layers),
-        ):
-            check_positive_int(key, value)
-        if num_subgoals < 0:
-            raise ValueError(f"num_subgoals={num_subgoals!r} must be >= 0")
-        if not 0.0 <= dropout < 1.0:
-            raise ValueError(f"dropout={dropout!r} must be in [0, 1)")
-        self.plan_every = plan_interval(control_frequency_hz, planning_frequency_hz)
-        self.visual_dim, self.vlm_dim = visual_dim, vlm_dim
-        self.action_dim, self.proprio_dim = action_dim, proprio_dim
-        self.goal_dim = goal_dim or s1_hidden_dim
-        self.planning_frequency_hz = float(planning_frequency_hz)
-        self.control_frequency_hz = float(control_frequency_hz)
+        if config is None:
+            config = DualSystemConfig(*args, **kwargs)
+        elif args or kwargs:
+            raise ValueError("pass either a DualSystemConfig or keyword arguments, not both")
+        self.config = c = config
+        self.plan_every = plan_interval(c.control_frequency_hz, c.planning_frequency_hz)
+        self.visual_dim, self.vlm_dim = c.visual_dim, c.vlm_dim
+        self.action_dim, self.proprio_dim = c.action_dim, c.proprio_dim
+        self.goal_dim = c.goal_dim or c.s1_hidden_dim
+        self.planning_frequency_hz = float(c.planning_frequency_hz)
+        self.control_frequency_hz = float(c.control_frequency_hz)
         self.s2 = S2Planner(
-            vlm_dim,
-            s2_hidden_dim,
+            c.vlm_dim,
+            c.s2_hidden_dim,
             self.goal_dim,
-            num_subgoals,
-            s2_num_layers,
-            s2_num_heads,
-            dropout,
+            c.num_subgoals,
+            c.s2_num_layers,
+            c.s2_num_heads,
+            c.dropout,
         )
         self.s1 = S1Controller(
-            visual_dim,
-            proprio_dim,
+            c.visual_dim,
+            c.proprio_dim,
             self.goal_dim,
-            s1_hidden_dim,
-            action_dim,
-            s1_num_layers,
-            gate,
-            dropout,
+            c.s1_hidden_dim,
+            c.action_dim,
+            c.s1_num_layers,
+            c.gate,
+            c.dropout,
         )
         self.s2_calls = 0  # total S2 evaluations since construction (diagnostics)
         self.reset()

@@ -1,10 +1,12 @@
 """Observation encoders of the agent: each modality becomes ``D``-wide context tokens.
 
-Data flow: :mod:`.rgbd` (image tokens) -> :mod:`.text` (instruction token) ->
-:mod:`.pose` (pose tokens); :class:`vla_gr.policy.VLAGRPolicy` fuses the tokens and hands
-them to the action head (:mod:`vla_gr.core.diffusion_policy`).
+Data flow: :mod:`.config` (``EncodersConfig``) -> :mod:`.rgbd` (image tokens) ->
+:mod:`.text` (instruction token) -> :mod:`.pose` (pose tokens);
+:class:`vla_gr.policy.VLAGRPolicy` fuses the tokens and hands them to the action head
+(:mod:`vla_gr.core.diffusion_policy`).
 """
 
+from vla_gr.core.encoders.config import EncodersConfig
 from vla_gr.core.encoders.pose import PoseEncoder, pose_features
 from vla_gr.core.encoders.rgbd import RGBDEncoder, spatial_softmax
 from vla_gr.core.encoders.text import (
@@ -17,6 +19,7 @@ from vla_gr.core.encoders.text import (
 )
 
 __all__ = [
+    "EncodersConfig",
     "HashedTextEncoder",
     "PoseEncoder",
     "RGBDEncoder",

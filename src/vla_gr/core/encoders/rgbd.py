@@ -13,6 +13,7 @@ import torch.nn.functional as F
 from torch import nn
 from torch.utils.checkpoint import checkpoint
 
+from vla_gr.geometry.robot_spec import MAX_DEPTH
 from vla_gr.validation import check_choice
 
 __all__ = ["VISION_POOLS", "spatial_softmax", "RGBDEncoder"]
@@ -80,7 +81,7 @@ class RGBDEncoder(nn.Module):
         dim: int = 128,
         pool: str = "grid",
         num_tokens: int = 4,
-        max_depth: float = 10.0,
+        max_depth: float = MAX_DEPTH,
         gradient_checkpointing: bool = False,
     ) -> None:
         super().__init__()
