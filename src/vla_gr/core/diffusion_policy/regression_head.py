@@ -11,6 +11,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from vla_gr.core.diffusion_policy.config import HeadConfig
 from vla_gr.core.trajectory_attention.attention import as_context_tokens
 from vla_gr.core.trajectory_attention.encoder import TrajectoryEncoder
 from vla_gr.validation import check_positive_int
@@ -50,16 +51,16 @@ class L1RegressionHead(nn.Module):
 
     def __init__(
         self,
-        action_dim: int = 7,
-        hidden_dim: int = 256,
+        action_dim: int = HeadConfig.action_dim,
+        hidden_dim: int = HeadConfig.hidden_dim,
         context_dim: int | None = None,
-        horizon: int = 16,
-        num_layers: int = 2,
-        num_heads: int = 4,
-        dropout: float = 0.0,
-        clip_sample: bool = True,
-        gradient_checkpointing: bool = False,
-        mlp_ratio: float = 4.0,
+        horizon: int = HeadConfig.horizon,
+        num_layers: int = HeadConfig.num_layers,
+        num_heads: int = HeadConfig.num_heads,
+        dropout: float = HeadConfig.dropout,
+        clip_sample: bool = HeadConfig.clip_sample,
+        gradient_checkpointing: bool = HeadConfig.gradient_checkpointing,
+        mlp_ratio: float = HeadConfig.mlp_ratio,
     ) -> None:
         super().__init__()
         for name, val in (("action_dim", action_dim), ("hidden_dim", hidden_dim)):

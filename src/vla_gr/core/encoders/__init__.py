@@ -6,7 +6,7 @@ Data flow: :mod:`.config` (``EncodersConfig``) -> :mod:`.rgbd` (image tokens) ->
 (:mod:`vla_gr.core.diffusion_policy`).
 """
 
-from vla_gr.core.encoders.config import EncodersConfig
+from vla_gr.core.encoders.config import TEXT_ENCODERS, VISION_POOLS, EncodersConfig
 from vla_gr.core.encoders.pose import PoseEncoder, pose_features
 from vla_gr.core.encoders.rgbd import RGBDEncoder, spatial_softmax
 from vla_gr.core.encoders.text import (
@@ -19,6 +19,8 @@ from vla_gr.core.encoders.text import (
 )
 
 __all__ = [
+    "TEXT_ENCODERS",
+    "VISION_POOLS",
     "EncodersConfig",
     "HashedTextEncoder",
     "PoseEncoder",

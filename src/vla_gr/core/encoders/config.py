@@ -1,5 +1,7 @@
 """``EncodersConfig``: the observation encoders and their token fusion (``model.encoders``).
 
+The encoders' keyword defaults are read from here, so they cannot drift.
+
 Next in the data flow: :mod:`vla_gr.core.encoders.rgbd`.
 """
 
@@ -7,12 +9,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from vla_gr.core.encoders.rgbd import VISION_POOLS
-from vla_gr.core.encoders.text import TEXT_ENCODERS
 from vla_gr.geometry.robot_spec import MAX_DEPTH
 from vla_gr.validation import check_choice, check_positive
 
-__all__ = ["EncodersConfig"]
+__all__ = ["TEXT_ENCODERS", "VISION_CHANNELS", "VISION_POOLS", "EncodersConfig"]
+
+VISION_POOLS = ("grid", "spatial_softmax")
+TEXT_ENCODERS = ("hashed", "minilm")
+VISION_CHANNELS = (32, 64, 64)
 
 
 @dataclass
@@ -20,7 +24,7 @@ class EncodersConfig:
     """RGB-D CNN + instruction encoder + pose MLP -> ``dim``-wide tokens, then fusion blocks."""
 
     dim: int = 128  # width D of every context token
-    vision_channels: list[int] = field(default_factory=lambda: [32, 64, 64])
+    vision_channels: list[int] = field(default_factory=lambda: list(VISION_CHANNELS))
     vision_pool: str = "grid"
     vision_tokens: int = 4  # grid: tokens per frame (a square); spatial_softmax: keypoints
     max_depth: float = MAX_DEPTH  # metres; depth is clipped and scaled to [0, 1]

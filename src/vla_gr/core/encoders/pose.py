@@ -9,6 +9,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from vla_gr.core.encoders.config import EncodersConfig
+
 __all__ = ["pose_features", "PoseEncoder"]
 
 
@@ -31,7 +33,9 @@ def pose_features(pose: torch.Tensor, scale: torch.Tensor, offset: torch.Tensor)
 class PoseEncoder(nn.Module):
     """MLP over pose features ``(..., 4)`` -> ``(..., D)``."""
 
-    def __init__(self, dim: int, hidden: int = 64, in_features: int = 4) -> None:
+    def __init__(
+        self, dim: int, hidden: int = EncodersConfig.pose_hidden, in_features: int = 4
+    ) -> None:
         super().__init__()
         self.net = nn.Sequential(nn.Linear(in_features, hidden), nn.SiLU(), nn.Linear(hidden, dim))
 

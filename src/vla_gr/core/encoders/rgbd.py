@@ -13,12 +13,10 @@ import torch.nn.functional as F
 from torch import nn
 from torch.utils.checkpoint import checkpoint
 
-from vla_gr.geometry.robot_spec import MAX_DEPTH
+from vla_gr.core.encoders.config import VISION_CHANNELS, VISION_POOLS, EncodersConfig
 from vla_gr.validation import check_choice
 
-__all__ = ["VISION_POOLS", "spatial_softmax", "RGBDEncoder"]
-
-VISION_POOLS = ("grid", "spatial_softmax")
+__all__ = ["spatial_softmax", "RGBDEncoder"]
 
 
 def spatial_softmax(features: torch.Tensor, temperature: float = 1.0) -> torch.Tensor:
@@ -77,12 +75,12 @@ class RGBDEncoder(nn.Module):
 
     def __init__(
         self,
-        channels: Sequence[int] = (32, 64, 64),
-        dim: int = 128,
-        pool: str = "grid",
-        num_tokens: int = 4,
-        max_depth: float = MAX_DEPTH,
-        gradient_checkpointing: bool = False,
+        channels: Sequence[int] = VISION_CHANNELS,
+        dim: int = EncodersConfig.dim,
+        pool: str = EncodersConfig.vision_pool,
+        num_tokens: int = EncodersConfig.vision_tokens,
+        max_depth: float = EncodersConfig.max_depth,
+        gradient_checkpointing: bool = EncodersConfig.gradient_checkpointing,
     ) -> None:
         super().__init__()
         check_choice("pool", pool, VISION_POOLS)

@@ -22,12 +22,12 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from vla_gr.core.encoders.config import TEXT_ENCODERS, EncodersConfig
 from vla_gr.validation import check_choice
 
 log = logging.getLogger(__name__)
 
 __all__ = [
-    "TEXT_ENCODERS",
     "hash_instruction",
     "mean_pool",
     "HashedTextEncoder",
@@ -37,7 +37,6 @@ __all__ = [
 ]
 
 _WORD = re.compile(r"[a-z0-9]+")
-TEXT_ENCODERS = ("hashed", "minilm")
 
 
 def hash_instruction(text: str, buckets: int) -> list[int]:
@@ -69,7 +68,7 @@ def mean_pool(hidden: torch.Tensor, attention_mask: torch.Tensor) -> torch.Tenso
 class HashedTextEncoder(nn.Module):
     """Mean of learned embeddings of hashed words and bigrams -> ``(B, D)``."""
 
-    def __init__(self, dim: int, buckets: int = 4096) -> None:
+    def __init__(self, dim: int, buckets: int = EncodersConfig.text_buckets) -> None:
         super().__init__()
         self.buckets = buckets
         self.embed = nn.EmbeddingBag(buckets, dim, mode="mean")
@@ -151,7 +150,9 @@ class SentenceTextEncoder(nn.Module):
         return self.proj(e.to(self.proj.weight.dtype))  # (B, D)
 
 
-def build_text_encoder(kind: str, dim: int, buckets: int = 4096) -> nn.Module:
+def build_text_encoder(
+    kind: str, dim: int, buckets: int = EncodersConfig.text_buckets
+) -> nn.Module:
     """``"hashed"`` -> :class:`HashedTextEncoder`; ``"minilm"`` -> :class:`SentenceTextEncoder`."""
     check_choice("text encoder", kind, TEXT_ENCODERS)
     if kind == "hashed":
