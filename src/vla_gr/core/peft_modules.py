@@ -10,6 +10,9 @@ Target selection follows peft: a list of names matches a module whose full
 name equals an entry or ends with ``"." + entry``; a single string is a regular
 expression that must match the full name; ``"all-linear"`` selects every
 ``nn.Linear``. Unlike peft, *every* list entry must match something.
+
+Applies to any module of :mod:`vla_gr.core` (attention projections first); next in the
+data flow: merged weights serve inference with no overhead.
 """
 
 from __future__ import annotations

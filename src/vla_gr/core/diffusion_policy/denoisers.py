@@ -16,6 +16,9 @@ what does not change across integration steps out of their loop:
 - :class:`TransformerDenoiser` -- action tokens with RoPE self-attention that
   cross-attend to ``[time token, context tokens]`` (built on
   :mod:`vla_gr.core.trajectory_attention`).
+
+Next in the data flow: :mod:`vla_gr.core.diffusion_policy.unet_inference` (the U-Net's
+batch-1 sampling step).
 """
 
 from __future__ import annotations

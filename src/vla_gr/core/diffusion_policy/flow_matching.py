@@ -14,6 +14,8 @@ Training times follow pi0: ``t = eps + (1 - eps) * u`` with ``u ~ Beta(1.5, 1)``
 near 1). This is the paper's ``p(tau) = Beta((s - tau) / s; 1.5, 1)`` written for
 ``t = 1 - tau``. ``Beta(a, 1)`` has CDF ``u**a``, so it is sampled exactly by inverse
 CDF ``U ** (1/a)`` from a uniform ``U``, which keeps a ``torch.Generator`` usable.
+
+Next in the data flow: :mod:`vla_gr.core.diffusion_policy.head` (training and sampling use it).
 """
 
 from __future__ import annotations

@@ -28,6 +28,9 @@ denoiser's per-step trunk runs inside the loop. That trunk is
 a :class:`~vla_gr.core.diffusion_policy.unet_inference.UnetStepPlan` (same maths, about
 half the eager per-op overhead; built from views of the current parameters, so it can
 never run stale weights), otherwise the reference ``denoise_step``.
+
+Next in the data flow: the denoisers (:mod:`vla_gr.core.diffusion_policy.denoisers`); the
+agent that feeds it context is :class:`vla_gr.policy.VLAGRPolicy`.
 """
 
 from __future__ import annotations

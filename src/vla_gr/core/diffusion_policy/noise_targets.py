@@ -13,6 +13,8 @@ and the network regresses one of (``prediction_type``):
 These match diffusers' ``add_noise`` / ``get_velocity`` and the way its schedulers'
 ``step`` interpret model outputs (checked by the tests), so a model trained with these
 targets is sampled with diffusers' DDPM / DDIM schedulers.
+
+Next in the data flow: :mod:`vla_gr.core.diffusion_policy.head` (diffusion training uses it).
 """
 
 from __future__ import annotations

@@ -3,6 +3,8 @@
 Shares :class:`~vla_gr.core.diffusion_policy.DiffusionPolicy`'s interface
 (``head(actions, context) -> {"loss", ...}``, ``head.get_action(context) -> (B, H, A)``)
 and is what ``DiffusionPolicy(objective="l1")`` dispatches to.
+
+Next in the data flow: :mod:`vla_gr.core.trajectory_attention.encoder` (its decoder).
 """
 
 from __future__ import annotations

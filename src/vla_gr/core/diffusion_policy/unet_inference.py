@@ -22,6 +22,8 @@ and structural changes are all seen by the next chunk. The only cached tensors a
 selection matrices, which depend on shapes alone. Modules it does not know exactly
 (e.g. a conv wrapped by an unmerged LoRA adapter) make :meth:`UnetStepPlan.build`
 return ``None`` and the caller falls back to the reference step.
+
+Next in the data flow: the sampling loop of :mod:`vla_gr.core.diffusion_policy.head` calls it.
 """
 
 from __future__ import annotations

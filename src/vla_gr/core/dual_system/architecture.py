@@ -14,6 +14,8 @@ Timeline of :meth:`DualSystemArchitecture.forward` in eval mode with
 In training mode S2 runs on every call so that gradients reach the planner.
 The threaded, non-blocking version of the same schedule is
 :class:`vla_gr.core.dual_system.runner.DualSystemRunner`.
+
+Next in the data flow: :mod:`vla_gr.core.dual_system.runner` (the threaded schedule).
 """
 
 from __future__ import annotations

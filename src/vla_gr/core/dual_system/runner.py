@@ -17,6 +17,8 @@ Usage::
         runner.set_planner_input(vlm_features)          # (1, T, vlm_dim)
         while running:
             out = runner.step(visual_features, proprio)  # never blocks on S2
+
+Last step of the dual system: S1's action at the control rate.
 """
 
 from __future__ import annotations

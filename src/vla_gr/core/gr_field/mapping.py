@@ -10,6 +10,8 @@ different poses simply add up:
 - ``POINT_HITS``: number of points that landed in the cell, so ``GOAL_SUM / POINT_HITS`` is
   the mean goal likelihood of what was seen there (a cell shared by a thin wall and the goal
   object in front of it is not all goal).
+
+Next in the data flow: :mod:`vla_gr.core.gr_field.physics` (masses, potential, metric).
 """
 
 from __future__ import annotations

@@ -6,6 +6,8 @@ Continuous positions are metric ``(x, y)`` measured from the grid's lower-left c
 centre of cell ``(r, c)`` is ``((c + 0.5) * h, (r + 0.5) * h)``. Vector index 0 is x, 1 is y.
 
 Every function is batched over a leading ``B`` and differentiable in torch unless stated.
+
+Next in the data flow: :mod:`vla_gr.core.gr_field.planning` (``GRField`` composes it).
 """
 
 from __future__ import annotations

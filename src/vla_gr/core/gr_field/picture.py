@@ -1,4 +1,7 @@
-"""Top-down RGB picture of a GR field for reports: potential, obstacles, frontier, goal, path."""
+"""Top-down RGB picture of a GR field for reports: potential, obstacles, frontier, goal, path.
+
+Last step of the GR field's data flow: an image for reports.
+"""
 
 from __future__ import annotations
 

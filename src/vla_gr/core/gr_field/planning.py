@@ -13,6 +13,8 @@ One :meth:`GRField.update` per planner tick:
    by fast marching with cost ``exp(psi)`` around the robot-inflated obstacles;
 6. outputs: egocentric heading-aligned features (B, C, h, w), the next waypoints of the
    geodesic (B, K, 2) in the robot frame, and a picture for reports (:meth:`GRField.render`).
+
+Next in the data flow: :mod:`vla_gr.core.gr_field.picture` (its top-down picture).
 """
 
 from __future__ import annotations

@@ -6,6 +6,8 @@ norms, and ``<R(m) q, R(n) k>`` depends only on ``m - n``, so attention scores s
 relative positions. Three equivalent forms: :func:`apply_rope` (reference),
 :func:`apply_rope_complex` (one complex multiply, fastest on CPU for float32) and
 :func:`apply_rope_tables` (real arithmetic for any dtype).
+
+Next in the data flow: :mod:`vla_gr.core.trajectory_attention.attention`.
 """
 
 from __future__ import annotations
