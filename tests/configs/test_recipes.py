@@ -76,6 +76,12 @@ def test_component_fields_follow_the_model_and_contradictions_fail():
     assert set(FOLLOWS) >= {("head", "action_dim"), ("head", "horizon"), ("head", "context_dim")}
 
 
+def test_agent_sensor_settings_follow_the_world():
+    _, cfg = load_config("config_debug", ["env.max_depth=5.0", "env.image_size=48"])
+    assert cfg.model.image_size == 48
+    assert cfg.model.encoders.max_depth == 5.0 and cfg.model.gr_field.max_depth == 5.0
+
+
 def _signature_defaults(fn) -> dict:
     return {
         k: p.default

@@ -125,11 +125,15 @@ class VLAGRConfig:
 def register_configs() -> None:
     """Register the schema under the name ``base_config`` (idempotent).
 
-    ``model.image_size`` follows ``env.image_size`` unless a recipe sets it, and the
-    component fields in :data:`~vla_gr.configs.model_schema.FOLLOWS` follow their model key.
+    The agent's view of the sensor follows the world's unless a recipe sets it
+    (``model.image_size``, ``model.encoders.max_depth`` and ``model.gr_field.max_depth``
+    follow ``env.*``), and the component fields in
+    :data:`~vla_gr.configs.model_schema.FOLLOWS` follow their model key.
     """
     node = OmegaConf.structured(VLAGRConfig)
     node.model.image_size = "${env.image_size}"
+    node.model.encoders.max_depth = "${env.max_depth}"
+    node.model.gr_field.max_depth = "${env.max_depth}"
     for (component, attr), key in FOLLOWS.items():
         node.model[component][attr] = "${model." + key + "}"
     ConfigStore.instance().store(name="base_config", node=node)
