@@ -1,4 +1,4 @@
-"""Dual-system control: a slow planner S2 steering a fast reactive controller S1.
+"""``DualSystemArchitecture``: S2 (:mod:`.planner`) steering S1 (:mod:`.controller`) on a schedule.
 
 As in GR00T N1 / Helix: S2 reads vision-language features at 1-5 Hz and emits a
 latent goal, optional sub-goals and a confidence; S1 runs at the control rate on
@@ -26,8 +26,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from vla_gr.core.dual_system.config import GATES, DualSystemConfig
-from vla_gr.validation import check_choice
+from vla_gr.core.dual_system.config import DualSystemConfig
+from vla_gr.core.dual_system.controller import S1Controller
+from vla_gr.core.dual_system.planner import S2Planner
 
 logger = logging.getLogger(__name__)
 
@@ -49,23 +50,6 @@ def plan_interval(control_frequency_hz: float, planning_frequency_hz: float) -> 
     return max(1, round(control_frequency_hz / planning_frequency_hz))
 
 
-def gate_actions(
-    goal_action: torch.Tensor, reactive_action: torch.Tensor, gate: torch.Tensor
-) -> torch.Tensor:
-    """Convex blend ``g * goal + (1 - g) * reactive``.
-
-    Args:
-        goal_action: (B, A) goal-directed action.
-        reactive_action: (B, A) reactive action.
-        gate: (B,) weight in [0, 1] of the goal-directed branch.
-
-    Returns:
-        (B, A) blended action.
-    """
-    g = gate.unsqueeze(-1)  # (B, 1)
-    return g * goal_action + (1.0 - g) * reactive_action  # (B, A)
-
-
 def confidence_targets(goal_error: torch.Tensor, reactive_error: torch.Tensor) -> torch.Tensor:
     """Calibration label: 1 where the goal-directed branch beats the reactive one.
 
@@ -77,186 +61,6 @@ def confidence_targets(goal_error: torch.Tensor, reactive_error: torch.Tensor) -
         (B,) float tensor in {0, 1}, detached.
     """
     return (goal_error < reactive_error).to(goal_error.dtype).detach()  # (B,)
-
-
-# --------------------------------------------------------------------------- modules
-
-
-class _ResidualMLPBlock(nn.Module):
-    """Pre-norm residual MLP block ``x + W2 gelu(W1 norm(x))``."""
-
-    def __init__(self, dim: int, expansion: int = 2, dropout: float = 0.0) -> None:
-        super().__init__()
-        self.norm = nn.LayerNorm(dim)
-        self.fc1 = nn.Linear(dim, expansion * dim)
-        self.fc2 = nn.Linear(expansion * dim, dim)
-        self.dropout = nn.Dropout(dropout)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """x: (B, D) -> (B, D)."""
-        return x + self.dropout(self.fc2(F.gelu(self.fc1(self.norm(x)))))  # (B, D)
-
-
-def _head(dim: int, out_dim: int) -> nn.Sequential:
-    return nn.Sequential(nn.LayerNorm(dim), nn.Linear(dim, dim), nn.GELU(), nn.Linear(dim, out_dim))
-
-
-class S2Planner(nn.Module):
-    """Slow planner: vision-language tokens -> latent goal, sub-goals, confidence.
-
-    Learnable query tokens (one goal token, ``num_subgoals`` sub-goal tokens) are
-    prepended to the projected input tokens and encoded jointly (pre-norm
-    transformer); the goal token feeds the goal and confidence heads.
-    """
-
-    def __init__(
-        self,
-        vlm_dim: int,
-        hidden_dim: int,
-        goal_dim: int,
-        num_subgoals: int = 4,
-        num_layers: int = 2,
-        num_heads: int = 4,
-        dropout: float = 0.0,
-    ) -> None:
-        super().__init__()
-        if hidden_dim % num_heads != 0:
-            raise ValueError(
-                f"s2_hidden_dim={hidden_dim} must be divisible by s2_num_heads={num_heads}"
-            )
-        self.num_subgoals = num_subgoals
-        self.in_proj = nn.Sequential(nn.LayerNorm(vlm_dim), nn.Linear(vlm_dim, hidden_dim))
-        self.queries = nn.Parameter(0.02 * torch.randn(1 + num_subgoals, hidden_dim))
-        layer = nn.TransformerEncoderLayer(
-            hidden_dim,
-            num_heads,
-            4 * hidden_dim,
-            dropout,
-            activation="gelu",
-            batch_first=True,
-            norm_first=True,
-        )
-        self.encoder = nn.TransformerEncoder(layer, num_layers, enable_nested_tensor=False)
-        self.norm = nn.LayerNorm(hidden_dim)
-        self.goal_head = nn.Linear(hidden_dim, goal_dim)
-        self.subgoal_head = nn.Linear(hidden_dim, goal_dim) if num_subgoals > 0 else None
-        self.confidence_head = nn.Linear(hidden_dim, 1)
-
-    def forward(
-        self, vlm_features: torch.Tensor, vlm_mask: torch.Tensor | None = None
-    ) -> dict[str, torch.Tensor | None]:
-        """Plan.
-
-        Args:
-            vlm_features: (B, T, vlm_dim) tokens or (B, vlm_dim) pooled features.
-            vlm_mask: optional (B, T) bool, True where a token is valid.
-
-        Returns:
-            ``latent_goal`` (B, G), ``subgoals`` (B, K, G) or None, ``confidence``
-            (B,) in (0, 1) and ``confidence_logit`` (B,).
-        """
-        if vlm_features.dim() == 2:
-            vlm_features = vlm_features.unsqueeze(1)  # (B, 1, vlm_dim)
-        B = vlm_features.shape[0]
-        tokens = self.in_proj(vlm_features)  # (B, T, D)
-        queries = self.queries.unsqueeze(0).expand(B, -1, -1)  # (B, 1+K, D)
-        x = torch.cat([queries, tokens], dim=1)  # (B, 1+K+T, D)
-        pad = None
-        if vlm_mask is not None:
-            valid_q = torch.ones(B, queries.shape[1], dtype=torch.bool, device=x.device)
-            pad = ~torch.cat([valid_q, vlm_mask.to(torch.bool)], dim=1)  # (B, 1+K+T)
-        x = self.norm(self.encoder(x, src_key_padding_mask=pad))  # (B, 1+K+T, D)
-        goal_token = x[:, 0]  # (B, D)
-        logit = self.confidence_head(goal_token).squeeze(-1)  # (B,)
-        subgoals = None
-        if self.subgoal_head is not None:
-            subgoals = self.subgoal_head(x[:, 1 : 1 + self.num_subgoals])  # (B, K, G)
-        return {
-            "latent_goal": self.goal_head(goal_token),  # (B, G)
-            "subgoals": subgoals,
-            "confidence": torch.sigmoid(logit),  # (B,)
-            "confidence_logit": logit,  # (B,)
-        }
-
-
-class S1Controller(nn.Module):
-    """Fast controller: (visual, proprioception, latent goal, confidence) -> action.
-
-    A shared residual-MLP trunk encodes the current observation; a *reactive*
-    head maps it to an action directly, a *goal-directed* head maps the trunk
-    state FiLM-modulated by the latent goal. The two are blended by the S2
-    confidence (``gate="confidence"``) or by a learned correction of its logit
-    from the S1 state (``gate="learned"``, zero-initialised so it starts equal).
-    """
-
-    def __init__(
-        self,
-        visual_dim: int,
-        proprio_dim: int,
-        goal_dim: int,
-        hidden_dim: int,
-        action_dim: int,
-        num_layers: int = 2,
-        gate: str = "confidence",
-        dropout: float = 0.0,
-    ) -> None:
-        super().__init__()
-        check_choice("gate", gate, GATES)
-        self.gate = gate
-        self.visual_proj = nn.Sequential(
-            nn.LayerNorm(visual_dim), nn.Linear(visual_dim, hidden_dim)
-        )
-        self.proprio_proj = nn.Linear(proprio_dim, hidden_dim)
-        self.trunk = nn.Sequential(
-            *[_ResidualMLPBlock(hidden_dim, dropout=dropout) for _ in range(num_layers)]
-        )
-        self.goal_film = nn.Linear(goal_dim, 2 * hidden_dim)
-        self.reactive_head = _head(hidden_dim, action_dim)
-        self.goal_head = _head(hidden_dim, action_dim)
-        self.gate_adjust = None
-        if gate == "learned":
-            self.gate_adjust = nn.Linear(hidden_dim, 1)
-            nn.init.zeros_(self.gate_adjust.weight)
-            nn.init.zeros_(self.gate_adjust.bias)
-
-    def forward(
-        self,
-        visual_features: torch.Tensor,
-        proprioception: torch.Tensor,
-        latent_goal: torch.Tensor,
-        confidence: torch.Tensor,
-    ) -> dict[str, torch.Tensor]:
-        """Act.
-
-        Args:
-            visual_features: (B, V) or (B, T, V) tokens (mean-pooled).
-            proprioception: (B, P).
-            latent_goal: (B, G) latest S2 goal.
-            confidence: (B,) S2 confidence in [0, 1].
-
-        Returns:
-            ``action`` (B, A), ``goal_action`` (B, A), ``reactive_action`` (B, A),
-            ``gate`` (B,) weight actually given to the goal-directed branch.
-        """
-        if visual_features.dim() == 3:
-            visual_features = visual_features.mean(dim=1)  # (B, V)
-        h = self.visual_proj(visual_features) + self.proprio_proj(proprioception)  # (B, D)
-        h = self.trunk(h)  # (B, D)
-        gamma, beta = self.goal_film(latent_goal).chunk(2, dim=-1)  # (B, D) each
-        h_goal = h * (1.0 + gamma) + beta  # (B, D)
-        goal_action = self.goal_head(h_goal)  # (B, A)
-        reactive_action = self.reactive_head(h)  # (B, A)
-        gate = confidence  # (B,)
-        if self.gate_adjust is not None:
-            eps = 1e-6
-            logit = torch.logit(confidence.clamp(eps, 1.0 - eps))  # (B,)
-            gate = torch.sigmoid(logit + self.gate_adjust(h).squeeze(-1))  # (B,)
-        return {
-            "action": gate_actions(goal_action, reactive_action, gate),  # (B, A)
-            "goal_action": goal_action,
-            "reactive_action": reactive_action,
-            "gate": gate,
-        }
 
 
 class DualSystemArchitecture(nn.Module):
