@@ -8,16 +8,19 @@ from pathlib import Path
 import torch
 
 from vla_gr.configs.model_schema import ModelConfig
+from vla_gr.core.diffusion_policy import HeadConfig
+from vla_gr.core.encoders import EncodersConfig
 from vla_gr.policy import VLAGRPolicy, make_fake_batch
 
 
 def tiny_model_config(**overrides) -> ModelConfig:
-    """A ~30 k-parameter agent on 16x16 images; deterministic L1 head unless overridden."""
-    base = dict(
-        image_size=16,
-        n_obs_steps=2,
-        horizon=4,
-        n_action_steps=2,
+    """A ~30 k-parameter agent on 16x16 images; deterministic L1 head unless overridden.
+
+    ``overrides`` are flat: each key goes to the model layout, ``model.encoders`` or
+    ``model.head``, whichever has it.
+    """
+    layout = dict(image_size=16, n_obs_steps=2, horizon=4, n_action_steps=2)
+    encoders = dict(
         dim=16,
         vision_channels=[8],
         vision_tokens=1,
@@ -26,14 +29,17 @@ def tiny_model_config(**overrides) -> ModelConfig:
         pose_hidden=8,
         fusion_layers=1,
         fusion_heads=2,
-        hidden_dim=16,
-        head_layers=1,
-        head_heads=2,
-        objective="l1",
-        sampler="none",
     )
-    base.update(overrides)
-    return ModelConfig(**base)
+    head = dict(hidden_dim=16, num_layers=1, num_heads=2, objective="l1")
+    encoder_keys = {f.name for f in dataclasses.fields(EncodersConfig)}
+    for key, value in overrides.items():
+        if key in encoder_keys:
+            encoders[key] = value
+        elif key in {f.name for f in dataclasses.fields(ModelConfig)}:
+            layout[key] = value
+        else:
+            head[key] = value
+    return ModelConfig(**layout, encoders=EncodersConfig(**encoders), head=HeadConfig(**head))
 
 
 def tiny_policy(seed: int = 0, **overrides) -> VLAGRPolicy:

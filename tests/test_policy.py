@@ -104,8 +104,7 @@ def _seeded_loss(policy, batch) -> float:
 
 @pytest.mark.parametrize(("objective", "factor"), [("l1", 0.7), ("flow_matching", 0.9)])
 def test_loss_is_finite_and_decreases_on_a_tiny_overfit(objective, factor):
-    sampler = "euler" if objective == "flow_matching" else "none"
-    policy = tiny_policy(0, objective=objective, sampler=sampler, dim=32, hidden_dim=32, horizon=8)
+    policy = tiny_policy(0, objective=objective, dim=32, hidden_dim=32, horizon=8)
     batch = fake_batch(policy.config, 4, seed=4)
     before = _seeded_loss(policy, batch)
     opt = torch.optim.Adam(policy.parameters(), lr=3e-3)

@@ -116,7 +116,7 @@ def test_debug_preset_trains_and_resumes_through_the_cli(tmp_path):
             *args,
             f"training.resume={resume}",
             "training.steps=5",
-            "model.dim=64",
+            "model.encoders.dim=64",
         ]
     )
     assert code == 2

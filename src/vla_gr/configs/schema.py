@@ -10,10 +10,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from hydra.core.config_store import ConfigStore
+from omegaconf import OmegaConf
 
-from vla_gr.configs.model_schema import ModelConfig
+from vla_gr.configs.model_schema import FOLLOWS, ModelConfig
 from vla_gr.configs.training_schema import LoggingConfig, TrainingConfig
-from vla_gr.configs.validation import check_choice, check_positive
+from vla_gr.geometry.robot_spec import MAX_DEPTH
+from vla_gr.validation import check_choice, check_positive
 
 SPLITS = ("train", "val", "test")
 
@@ -29,7 +31,7 @@ class EnvConfig:
     success_distance: float = 1.0
     semantic: bool = False
     episodes: str | None = None  # optional JSONL file of episode specs
-    max_depth: float = 10.0  # depth readings are clipped to [0, max_depth] metres
+    max_depth: float = MAX_DEPTH  # depth readings are clipped to [0, max_depth] metres
     num_rooms: int | None = None  # house size knob (None: the generator draws 2-5)
     clutter: float = 1.0  # furniture density knob of the house generator
     scene_cache_size: int = 4  # compiled houses kept per env (LRU)
@@ -121,5 +123,17 @@ class VLAGRConfig:
 
 
 def register_configs() -> None:
-    """Register the schema under the name ``base_config`` (idempotent)."""
-    ConfigStore.instance().store(name="base_config", node=VLAGRConfig)
+    """Register the schema under the name ``base_config`` (idempotent).
+
+    The agent's view of the sensor follows the world's unless a recipe sets it
+    (``model.image_size``, ``model.encoders.max_depth`` and ``model.gr_field.max_depth``
+    follow ``env.*``), and the component fields in
+    :data:`~vla_gr.configs.model_schema.FOLLOWS` follow their model key.
+    """
+    node = OmegaConf.structured(VLAGRConfig)
+    node.model.image_size = "${env.image_size}"
+    node.model.encoders.max_depth = "${env.max_depth}"
+    node.model.gr_field.max_depth = "${env.max_depth}"
+    for (component, attr), key in FOLLOWS.items():
+        node.model[component][attr] = "${model." + key + "}"
+    ConfigStore.instance().store(name="base_config", node=node)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import importlib.util
 from dataclasses import dataclass, field
 
-from vla_gr.configs.validation import check_choice, check_positive
+from vla_gr.validation import check_choice, check_positive
 
 AMP_MODES = ("none", "fp16", "bf16")
 DEVICES = ("auto", "cpu", "cuda")

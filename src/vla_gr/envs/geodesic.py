@@ -7,8 +7,7 @@ from scipy import ndimage
 
 from vla_gr.envs.scene import House
 from vla_gr.geometry import GridSpec, geodesic_distance, inflate_obstacles
-
-ROBOT_RADIUS = 0.18
+from vla_gr.geometry.robot_spec import ROBOT_RADIUS
 
 
 def clearance_radius(robot_radius: float, cell_size: float) -> float:

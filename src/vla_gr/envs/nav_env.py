@@ -49,11 +49,10 @@ from vla_gr.envs.geodesic import sample_field, traversable_cells
 from vla_gr.envs.metrics import EpisodeMeasures
 from vla_gr.envs.rendering import RGBDRenderer, make_gl_context, tune_model_for_speed
 from vla_gr.envs.scene import House, ObjectInstance
+from vla_gr.geometry.robot_spec import MAX_ANGULAR_SPEED, MAX_LINEAR_SPEED
 
 logger = logging.getLogger(__name__)
 
-MAX_LINEAR_SPEED = 0.5  # m/s
-MAX_ANGULAR_SPEED = 1.0  # rad/s
 SUBSTEPS = 10  # 10 ms physics steps: stiff enough contacts (< 1 mm penetration at a wall)
 BLOCKED_FRACTION = 0.5  # achieved / commanded displacement below this + contact = collision
 INSTRUCTION_MAX_LENGTH = 256
