@@ -50,7 +50,7 @@ def test_deleted_chunk_is_refused_naming_store_array_and_episodes(tmp_path):
         EpisodeStore.open(path)
     msg = str(err.value)
     assert str(path) in msg and "data/depth chunk 1" in msg and "missing" in msg
-    assert "episodes [0, 1]" in msg and "store verify" in msg
+    assert "episode(s) [0, 1]" in msg and "store verify" in msg
 
 
 @pytest.mark.parametrize(
@@ -71,7 +71,7 @@ def test_flipped_bytes_are_refused_in_every_array(tmp_path, array):
     _flip(_chunk(path, array, 0))
     with pytest.raises(StoreError, match=f"{array} chunk 0 .*checksum mismatch") as err:
         EpisodeStore.open(path)
-    assert "episodes [0" in str(err.value)
+    assert "episode(s) [0" in str(err.value)
 
 
 def test_flipped_episode_ends_cannot_be_skipped(tmp_path):
@@ -128,7 +128,7 @@ def test_skip_mode_hides_damaged_episodes(tmp_path, caplog):
     with caplog.at_level(logging.WARNING):
         store = EpisodeStore.open(path, on_corrupt="skip")
     assert store.damaged_episodes == [0, 1]
-    assert "episodes [0, 1]" in caplog.text and "skipping" in caplog.text
+    assert "episode(s) [0, 1]" in caplog.text and "skipping" in caplog.text
     with pytest.raises(StoreError, match="episode 1 is damaged"):
         store.episode(1)
     np.testing.assert_array_equal(store.episode(2)["depth"], fake_episode(2, 3).depth)
@@ -169,3 +169,23 @@ def test_legacy_store_opens_with_one_warning_and_still_finds_missing_chunks(tmp_
     _chunk(path, "data/depth", 1).unlink()
     with pytest.raises(StoreError, match="data/depth chunk 1 .*missing"):
         EpisodeStore.open(path)
+
+
+def test_training_data_refuses_or_skips_damaged_episodes(tmp_path):
+    from vla_gr.configs import load_config
+    from vla_gr.training.data import build_datasets
+
+    path = tmp_path / "train.zarr"
+    overrides = [f"training.dataset={path}", "training.batch_size=2"]
+    _, cfg = load_config("config_debug", overrides)
+    S = cfg.model.image_size
+    store = EpisodeStore.create(path, image_size=S, chunk_bytes=S * S * 3)  # 1 rgb frame/chunk
+    for e in range(4):
+        store.append(fake_episode(e, 6, image_size=S))
+    _chunk(path, "data/rgb", 7).unlink()  # frame 7: episode 1
+    with pytest.raises(StoreError, match=r"episode\(s\) \[1\]: data/rgb chunk 7 "):
+        build_datasets(cfg, path)
+    _, cfg = load_config("config_debug", [*overrides, "training.on_corrupt=skip"])
+    train, val = build_datasets(cfg, path)
+    used = set(train.episode_ids.tolist()) | set(val.episode_ids.tolist())
+    assert used == {0, 2, 3}

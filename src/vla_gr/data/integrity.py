@@ -140,7 +140,7 @@ def describe_damage(path: Path, damage: Sequence[Damage], limit: int = 4) -> str
     shown = "; ".join(d.describe() for d in damage[:limit])
     more = f"; and {len(damage) - limit} more bad chunks" if len(damage) > limit else ""
     return (
-        f"store {path} is damaged: {len(damage)} bad chunks hit {len(episodes)} episodes "
+        f"store {path} is damaged: {len(damage)} bad chunk(s) in episode(s) "
         f"{_short_list(episodes)}: {shown}{more}"
     )
 
