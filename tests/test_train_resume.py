@@ -11,11 +11,10 @@ from pathlib import Path
 
 import pytest
 import torch
-from hydra.errors import ConfigCompositionException
 from safetensors.torch import load_file
 
 from vla_gr import cli
-from vla_gr.configs import load_config
+from vla_gr.configs import ConfigError, load_config
 from vla_gr.policy import VLAGRPolicy, make_fake_batch
 from vla_gr.train import train
 
@@ -208,7 +207,7 @@ def test_invalid_values_fail_naming_the_key(override, key):
 
 @pytest.mark.parametrize("override", ["training.learning_rate=1", "model.peft.rnk=4"])
 def test_unknown_keys_fail_naming_the_key(override):
-    with pytest.raises(ConfigCompositionException, match=override.split("=")[0]):
+    with pytest.raises(ConfigError, match=override.split("=")[0]):
         load_config("config_cpu", [override])
 
 

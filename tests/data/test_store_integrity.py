@@ -189,3 +189,27 @@ def test_training_data_refuses_or_skips_damaged_episodes(tmp_path):
     train, val = build_datasets(cfg, path)
     used = set(train.episode_ids.tolist()) | set(val.episode_ids.tolist())
     assert used == {0, 2, 3}
+
+
+def test_store_verify_command_reports_health(tmp_path, capsys):
+    from vla_gr.cli import main
+
+    path = _filled(tmp_path / "s.zarr")
+    assert main(["store", "verify", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert (
+        "3 episodes, 15 frames" in out
+        and "CRC32C" in out
+        and out.rstrip().endswith("values in range)")
+    )
+    assert "data/rgb" in out and "meta/spec" in out and "BAD" not in out
+    zarr.open_array(str(path / "data/depth"), mode="r+")[12] = -1.0  # only a deep check sees it
+    _chunk(path, "data/rgb", 1).unlink()
+    assert main(["store", "verify", "--fast", str(path)]) == 1
+    fast = capsys.readouterr().out
+    assert "DAMAGED: 1 bad chunk(s) in 2 episode(s) [0, 1]" in fast
+    assert main(["store", "verify", str(path)]) == 1
+    deep = capsys.readouterr().out
+    assert "DAMAGED: 2 bad chunk(s) in 3 episode(s) [0, 1, 2]" in deep
+    assert "data/depth chunk 3 (rows 12-14): values out of range [0.0, inf]" in deep
+    assert "data/rgb chunk 1 (rows 4-7): missing chunk" in deep

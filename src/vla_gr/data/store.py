@@ -48,11 +48,13 @@ from vla_gr.data.integrity import (
     Damage,
     describe_damage,
     episodes_of_rows,
+    health_lines,
     is_checksummed,
     scan_store_arrays,
     value_problem,
 )
 from vla_gr.data.normalize import compute_stats, merge_stats
+from vla_gr.errors import UserError
 
 log = logging.getLogger(__name__)
 
@@ -71,8 +73,8 @@ _STRUCTURAL = ("meta/episode_ends", "meta/episode_index")
 _warned_legacy: set[str] = set()
 
 
-class StoreError(ValueError):
-    """A store that is missing, malformed or inconsistent; the message names the problem."""
+class StoreError(UserError, ValueError):
+    """A store that is missing, malformed, inconsistent or damaged; the message names it."""
 
 
 @dataclass
@@ -560,3 +562,35 @@ def fake_episode(
         spec={"episode_id": episode_index, "scene_seed": int(seed)},
         metrics={"success": 1.0, "spl": 1.0},
     )
+
+
+def verify_store(path: str | Path, deep: bool = True) -> tuple[bool, list[str]]:
+    """Check every chunk of the store at ``path``: (healthy, report lines).
+
+    ``deep`` decodes every chunk and checks its values (depth too); otherwise presence,
+    checksums, actions and poses (what ``open`` checks). A store whose structure is
+    broken is reported as damaged; a path that is not a store raises ``StoreError``.
+    """
+    path = Path(path)
+    if not (path / "zarr.json").is_file():
+        raise StoreError(f"{path} is not an episode store (no zarr.json)")
+    try:
+        group = zarr.open_group(str(path), mode="r")
+        store = EpisodeStore(path, group, "r", on_corrupt="report", deep=deep)
+    except StoreError as err:
+        return False, [f"DAMAGED: {err}"]
+    arrays = {
+        f"{k}/{n}": store._array(f"{k}/{n}")
+        for k, names in (("data", FRAME_KEYS), ("meta", META_KEYS))
+        for n in names
+    }
+    lines = health_lines(
+        path,
+        int(group.attrs["format_version"]),
+        store.num_episodes,
+        store.num_frames,
+        arrays,
+        store.damage,
+        deep,
+    )
+    return not store.damage, lines
