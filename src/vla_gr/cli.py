@@ -62,7 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def verify_store_command(path: str, deep: bool) -> int:
     """Print the health of the store at ``path``; 0 when healthy, 1 when damaged."""
-    from vla_gr.data.store import verify_store
+    from vla_gr.data.verify import verify_store
 
     healthy, lines = verify_store(path, deep=deep)
     sys.stdout.write("\n".join(lines) + "\n")

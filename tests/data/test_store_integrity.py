@@ -213,3 +213,13 @@ def test_store_verify_command_reports_health(tmp_path, capsys):
     assert "DAMAGED: 2 bad chunk(s) in 3 episode(s) [0, 1, 2]" in deep
     assert "data/depth chunk 3 (rows 12-14): values out of range [0.0, inf]" in deep
     assert "data/rgb chunk 1 (rows 4-7): missing chunk" in deep
+
+
+def test_store_verify_reports_a_broken_structure(tmp_path, capsys):
+    from vla_gr.data import verify_store
+
+    path = _filled(tmp_path / "s.zarr")
+    _flip(_chunk(path, "meta/episode_ends", 0))
+    healthy, lines = verify_store(path)
+    assert not healthy and lines[0].startswith("DAMAGED: store")
+    assert "meta/episode_ends chunk 0" in lines[0] and "checksum mismatch" in lines[0]

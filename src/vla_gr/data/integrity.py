@@ -141,11 +141,12 @@ def describe_damage(path: Path, damage: Sequence[Damage], limit: int = 4) -> str
     more = f"; and {len(damage) - limit} more bad chunks" if len(damage) > limit else ""
     return (
         f"store {path} is damaged: {len(damage)} bad chunk(s) in episode(s) "
-        f"{_short_list(episodes)}: {shown}{more}"
+        f"{short_list(episodes)}: {shown}{more}"
     )
 
 
-def _short_list(values: Sequence[int], limit: int = 20) -> str:
+def short_list(values: Sequence[int], limit: int = 20) -> str:
+    """``[a, b, ...]`` showing at most ``limit`` of ``values``."""
     shown = ", ".join(map(str, values[:limit]))
     return f"[{shown}{', ...' if len(values) > limit else ''}]"
 
@@ -174,37 +175,3 @@ def scan_store_arrays(
         ):
             damage.append(Damage(name, chunk, start, stop, problem, owners(name, start, stop)))
     return damage
-
-
-def health_lines(
-    path: Path,
-    version: int,
-    num_episodes: int,
-    num_frames: int,
-    arrays: dict[str, zarr.Array],
-    damage: Sequence[Damage],
-    deep: bool,
-) -> list[str]:
-    """A human-readable health report: the store, one line per array, then the verdict."""
-    checksummed = all(is_checksummed(a) for a in arrays.values())
-    lines = [
-        f"store {path}: format {version} ({'CRC32C per chunk' if checksummed else 'NO checksums'})"
-        f", {num_episodes} episodes, {num_frames} frames"
-    ]
-    for name, arr in arrays.items():
-        bad = sum(d.array == name for d in damage)
-        shape = f"{tuple(arr.shape)} {arr.dtype}"
-        lines.append(
-            f"  {name:<18} {shape:<28} {arr.nchunks:>6} chunks  {f'{bad} BAD' if bad else 'ok'}"
-        )
-    checks = "present, checksums" + (", decoded, values in range" if deep else ", actions/poses")
-    if not damage:
-        lines.append(f"OK: every chunk of the {num_episodes} episodes checked ({checks})")
-        return lines
-    episodes = sorted({e for d in damage for e in d.episodes})
-    lines.append(
-        f"DAMAGED: {len(damage)} bad chunk(s) in {len(episodes)} episode(s) "
-        f"{_short_list(episodes, 50)} (checked: {checks})"
-    )
-    lines.extend(f"  {d.describe()}" for d in damage)
-    return lines

@@ -48,7 +48,6 @@ from vla_gr.data.integrity import (
     Damage,
     describe_damage,
     episodes_of_rows,
-    health_lines,
     is_checksummed,
     scan_store_arrays,
     value_problem,
@@ -152,7 +151,9 @@ class EpisodeStore:
     """A zarr episode store; ``create`` a new one or ``open`` an existing one (validated).
 
     Only committed episodes are visible: ``num_episodes``, ``episode_ends`` and every
-    accessor ignore the residue of an interrupted append.
+    accessor ignore the residue of an interrupted append. ``damage`` lists the bad chunks
+    found on opening (``on_corrupt="report"``, used by ``verify_store``, keeps them
+    without refusing or warning).
     """
 
     def __init__(
@@ -329,8 +330,7 @@ class EpisodeStore:
                 )
         self._E, self._N, self._ends = E, N, ends
         self._indices = set(np.asarray(self._meta["episode_index"][:E]).tolist())
-        arrays = {f"data/{k}": a for k, a in self._data.items()}
-        arrays.update({f"meta/{k}": self._meta[k] for k in ("instruction", "spec", "metrics")})
+        arrays = {n: a for n, a in self.arrays().items() if n not in _STRUCTURAL}
         rows = {name: (N if name.startswith("data/") else E) for name in arrays}
         self.damage = self._scan(arrays, rows, ends, deep, legacy)
         self._check_damage(on_corrupt)
@@ -447,6 +447,11 @@ class EpisodeStore:
     def info(self) -> dict:
         return dict(self._group.attrs.get("info", {}))
 
+    def arrays(self) -> dict[str, zarr.Array]:
+        """Every array by its name in the store: ``data/rgb`` ... ``meta/metrics``."""
+        named = {f"data/{k}": a for k, a in self._data.items()}
+        return named | {f"meta/{k}": a for k, a in self._meta.items()}
+
     def data_array(self, key: str) -> zarr.Array:
         """The raw zarr array ``data/<key>``; only its first ``num_frames`` rows are committed."""
         if key not in self._data:
@@ -562,35 +567,3 @@ def fake_episode(
         spec={"episode_id": episode_index, "scene_seed": int(seed)},
         metrics={"success": 1.0, "spl": 1.0},
     )
-
-
-def verify_store(path: str | Path, deep: bool = True) -> tuple[bool, list[str]]:
-    """Check every chunk of the store at ``path``: (healthy, report lines).
-
-    ``deep`` decodes every chunk and checks its values (depth too); otherwise presence,
-    checksums, actions and poses (what ``open`` checks). A store whose structure is
-    broken is reported as damaged; a path that is not a store raises ``StoreError``.
-    """
-    path = Path(path)
-    if not (path / "zarr.json").is_file():
-        raise StoreError(f"{path} is not an episode store (no zarr.json)")
-    try:
-        group = zarr.open_group(str(path), mode="r")
-        store = EpisodeStore(path, group, "r", on_corrupt="report", deep=deep)
-    except StoreError as err:
-        return False, [f"DAMAGED: {err}"]
-    arrays = {
-        f"{k}/{n}": store._array(f"{k}/{n}")
-        for k, names in (("data", FRAME_KEYS), ("meta", META_KEYS))
-        for n in names
-    }
-    lines = health_lines(
-        path,
-        int(group.attrs["format_version"]),
-        store.num_episodes,
-        store.num_frames,
-        arrays,
-        store.damage,
-        deep,
-    )
-    return not store.damage, lines
