@@ -223,3 +223,21 @@ def test_store_verify_reports_a_broken_structure(tmp_path, capsys):
     healthy, lines = verify_store(path)
     assert not healthy and lines[0].startswith("DAMAGED: store")
     assert "meta/episode_ends chunk 0" in lines[0] and "checksum mismatch" in lines[0]
+
+
+def test_train_command_on_a_damaged_store_is_one_line(tmp_path, capsys):
+    from vla_gr.cli import main
+
+    path = tmp_path / "train.zarr"
+    store = EpisodeStore.create(path, image_size=32)  # config_debug's model.image_size
+    for e in range(4):
+        store.append(fake_episode(e, 6, image_size=32))
+    _chunk(path, "data/depth", 0).unlink()  # one chunk holds every frame
+    argv = ["train", "--config-name", "config_debug", f"training.dataset={path}"]
+    argv.append(f"training.output_dir={tmp_path / 'runs'}")
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "data/depth chunk 0" in err[0] and "on_corrupt=skip" in err[0]
+    assert main([*argv, "training.on_corrupt=skip"]) == 2  # nothing intact is left
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "0 training windows" in err[0]

@@ -11,6 +11,7 @@ from torch.utils.data import DataLoader
 
 from vla_gr.data.dataset import EpisodeWindowDataset
 from vla_gr.data.store import EpisodeStore, fake_episode
+from vla_gr.errors import ConfigError
 from vla_gr.training.distributed import DistInfo, ResumableSampler, barrier
 
 log = logging.getLogger(__name__)
@@ -65,7 +66,7 @@ def build_datasets(cfg, path: Path) -> tuple[EpisodeWindowDataset, EpisodeWindow
     store = EpisodeStore.open(path, mode="r", on_corrupt=t.on_corrupt)
     train = EpisodeWindowDataset(store, split="train", **kwargs)
     if tuple(train.store.image_size) != (m.image_size, m.image_size):
-        raise ValueError(
+        raise ConfigError(
             f"training.dataset {path} holds {train.store.image_size} images but "
             f"model.image_size={m.image_size}"
         )
@@ -73,7 +74,7 @@ def build_datasets(cfg, path: Path) -> tuple[EpisodeWindowDataset, EpisodeWindow
     if val is not None and len(val) == 0:
         val = None
     if len(train) < t.batch_size:
-        raise ValueError(
+        raise ConfigError(
             f"training.dataset {path} has {len(train)} training windows, fewer than "
             f"training.batch_size={t.batch_size}"
         )
