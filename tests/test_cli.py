@@ -130,3 +130,16 @@ def test_demo_runs_on_debug_config(tmp_path, capsys):
     png = iio.imread(out_dir / "episode_000_topdown.png")
     assert png.shape[0] == 128 and png.ndim == 3
     assert (out_dir / "episodes.jsonl").read_text().count("\n") == 1
+
+
+def test_no_module_imports_the_cli():
+    """The entry plumbing lives in vla_gr.configs.command: apps import it downward."""
+    import vla_gr
+
+    root = Path(vla_gr.__file__).parent
+    upward = [
+        str(p.relative_to(root))
+        for p in root.rglob("*.py")
+        if p.name != "cli.py" and "vla_gr.cli" in p.read_text(encoding="utf-8")
+    ]
+    assert upward == []

@@ -25,6 +25,7 @@ USER_ERRORS: tuple[type[BaseException], ...] = (
     FileExistsError,
     IsADirectoryError,
     NotADirectoryError,
+    PermissionError,
 )
 EXIT_USAGE = 2
 
