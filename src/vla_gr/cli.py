@@ -57,6 +57,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="skip decoding images: presence, checksums, actions and poses only",
     )
     add_verbose_argument(verify)
+    copy = actions.add_parser(
+        "copy",
+        help="rewrite a store in the current format (adds checksums to a format-1 store)",
+    )
+    copy.add_argument("src", help="the store to read")
+    copy.add_argument("dst", help="the new store (must not exist unless --overwrite)")
+    copy.add_argument("--skip-damaged", action="store_true", help="copy only the intact episodes")
+    copy.add_argument("--overwrite", action="store_true", help="replace dst if it exists")
+    add_verbose_argument(copy)
     return parser
 
 
@@ -69,16 +78,32 @@ def verify_store_command(path: str, deep: bool) -> int:
     return 0 if healthy else 1
 
 
+def copy_store_command(src: str, dst: str, skip_damaged: bool, overwrite: bool) -> int:
+    """Copy ``src`` to a new store ``dst`` in the current format; 0 on success."""
+    from vla_gr.data.verify import copy_store
+
+    on_corrupt = "skip" if skip_damaged else "error"
+    store = copy_store(src, dst, on_corrupt=on_corrupt, overwrite=overwrite)
+    sys.stdout.write(f"{store.path}: {store.num_episodes} episodes, {store.num_frames} frames\n")
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_logging()
     prog = f"vla-gr {args.command}"
+    if args.command == "store" and args.action == "verify":
+        return run_command(
+            f"{prog} verify", verify_store_command, args.path, not args.fast, verbose=args.verbose
+        )
     if args.command == "store":
         return run_command(
-            f"{prog} {args.action}",
-            verify_store_command,
-            args.path,
-            not args.fast,
+            f"{prog} copy",
+            copy_store_command,
+            args.src,
+            args.dst,
+            args.skip_damaged,
+            args.overwrite,
             verbose=args.verbose,
         )
     func = _resolve(COMMANDS[args.command][0])

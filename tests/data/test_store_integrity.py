@@ -241,3 +241,28 @@ def test_train_command_on_a_damaged_store_is_one_line(tmp_path, capsys):
     assert main([*argv, "training.on_corrupt=skip"]) == 2  # nothing intact is left
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "0 training windows" in err[0]
+
+
+def test_store_copy_adds_checksums_and_salvages_intact_episodes(tmp_path, capsys):
+    from vla_gr.cli import main
+
+    old = _legacy(tmp_path / "old.zarr")
+    new = tmp_path / "new.zarr"
+    assert main(["store", "copy", str(old), str(new)]) == 0
+    assert "3 episodes, 15 frames" in capsys.readouterr().out
+    assert "crc32c" in (new / "data/rgb/zarr.json").read_text()
+    copied, original = EpisodeStore.open(new), EpisodeStore.open(old)
+    assert json.loads((new / "zarr.json").read_text())["attributes"]["format_version"] == 2
+    for e in range(3):
+        for key, values in original.episode(e).items():
+            np.testing.assert_array_equal(copied.episode(e)[key], values)
+        assert copied.spec(e) == original.spec(e)
+    assert copied.stats == original.stats
+    damaged = _filled(tmp_path / "damaged.zarr")
+    _chunk(damaged, "data/depth", 1).unlink()  # episodes 0 and 1
+    salvaged = tmp_path / "salvaged.zarr"
+    assert main(["store", "copy", str(damaged), str(salvaged)]) == 2  # refused by default
+    assert "data/depth chunk 1" in capsys.readouterr().err and not salvaged.exists()
+    assert main(["store", "copy", "--skip-damaged", str(damaged), str(salvaged)]) == 0
+    kept = EpisodeStore.open(salvaged)
+    assert kept.episode_indices.tolist() == [2] and kept.damage == []

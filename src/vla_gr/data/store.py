@@ -26,7 +26,7 @@ episodes need exists and matches its checksum, and that actions and poses are va
 (``vla_gr.data.integrity``); a damaged store is refused (``StoreError`` naming the store,
 the arrays and the episodes) or, with ``on_corrupt="skip"``, opened without its damaged
 episodes. Format-1 stores (no checksums) still open, with one warning: flipped or truncated
-chunks can go unnoticed there; collect them again to get checksums.
+chunks can go unnoticed there; ``vla-gr store copy OLD NEW`` rewrites one with checksums.
 """
 
 from __future__ import annotations
@@ -339,7 +339,8 @@ class EpisodeStore:
             log.warning(
                 "store %s is format 1, written without chunk checksums: flipped or truncated "
                 "chunks can go unnoticed (missing chunks and invalid actions are still "
-                "caught); collect it again to get checksums",
+                "caught); `vla-gr store copy %s NEW` rewrites it with checksums",
+                self.path,
                 self.path,
             )
         if self.has_uncommitted():

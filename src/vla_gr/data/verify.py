@@ -1,14 +1,21 @@
-"""``vla-gr store verify``: the health report of an episode store, chunk by chunk."""
+"""``vla-gr store verify`` / ``copy``: a store's health chunk by chunk, and rewriting it.
+
+``copy_store`` rewrites a store in the current format (checksums for a format-1 store) or
+salvages the intact episodes of a damaged one.
+"""
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 from pathlib import Path
 
 import zarr
 
 from vla_gr.data.integrity import Damage, is_checksummed, short_list
-from vla_gr.data.store import EpisodeStore, StoreError
+from vla_gr.data.store import EpisodeRecord, EpisodeStore, StoreError
+
+log = logging.getLogger(__name__)
 
 
 def health_lines(
@@ -70,3 +77,37 @@ def verify_store(path: str | Path, deep: bool = True) -> tuple[bool, list[str]]:
         deep,
     )
     return not store.damage, lines
+
+
+def copy_store(
+    src: str | Path, dst: str | Path, on_corrupt: str = "error", overwrite: bool = False
+) -> EpisodeStore:
+    """Copy the episodes of ``src`` into a new store ``dst`` in the current format.
+
+    Rewrites a format-1 store with checksums; ``on_corrupt="skip"`` salvages the intact
+    episodes of a damaged one. Statistics are recomputed from the copied episodes.
+    """
+    source = EpisodeStore.open(src, mode="r", on_corrupt=on_corrupt)
+    target = EpisodeStore.create(dst, source.image_size, overwrite=overwrite, info=source.info)
+    skipped = set(source.damaged_episodes)
+    indices = source.episode_indices
+    for e in range(source.num_episodes):
+        if e in skipped:
+            continue
+        target.append(
+            EpisodeRecord(
+                episode_index=int(indices[e]),
+                **source.episode(e),
+                instruction=source.instruction(e),
+                spec=source.spec(e),
+                metrics=source.metrics(e),
+            )
+        )
+    log.info(
+        "copied %d of %d episodes from %s to %s",
+        target.num_episodes,
+        source.num_episodes,
+        source.path,
+        target.path,
+    )
+    return target
