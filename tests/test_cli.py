@@ -18,7 +18,7 @@ def test_help_lists_commands(capsys):
         main(["--help"])
     assert exc.value.code == 0
     out = capsys.readouterr().out
-    for name in ("collect", "demo", "train"):
+    for name in ("collect", "demo", "train", "store"):
         assert name in out
     assert set(COMMANDS) >= {"collect", "demo", "train"}
 

@@ -2,8 +2,9 @@
 
 Every app subcommand takes ``--config-name NAME``, Hydra ``key=value`` overrides and
 ``--verbose``, and is also runnable as ``python -m vla_gr.<module>``. ``vla-gr store
-verify PATH`` checks an episode store. Errors a user causes end in one or two lines on
-stderr and exit code 2 (see ``vla_gr.configs.command``).
+verify PATH`` checks an episode store, ``vla-gr store copy SRC DST`` rewrites one.
+Errors a user causes end in one or two lines on stderr and exit code 2 (see
+``vla_gr.configs.command``).
 """
 
 from __future__ import annotations
