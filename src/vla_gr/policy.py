@@ -126,9 +126,7 @@ class VLAGRPolicy(nn.Module):
     def encode_observations(self, batch: Mapping) -> torch.Tensor:
         """Context tokens ``(B, 1 + T + T*K, D)`` from a batch of observation histories."""
         rgb, depth, pose = batch["rgb"], batch["depth"], batch["pose"]  # (B,T,3,H,W) ...
-        instructions = batch["instruction"]
-        if isinstance(instructions, str):
-            instructions = [instructions]
+        instructions = as_instructions(batch["instruction"], "batch['instruction']")
         if rgb.dim() != 5:
             raise ValueError(f"batch['rgb'] must be (B, T, 3, H, W); got {tuple(rgb.shape)}")
         B, T = rgb.shape[:2]
@@ -143,7 +141,7 @@ class VLAGRPolicy(nn.Module):
         img = img.flatten(1, 2) + self.type_embed[2]  # (B, T*K, D)
         feats = pose_features(pose.float(), self.pose_scale, self.pose_offset)  # (B, T, 4)
         pos = self.pose(feats) + self.step_embed + self.type_embed[1]  # (B, T, D)
-        txt = self.text(list(instructions)).unsqueeze(1) + self.type_embed[0]  # (B, 1, D)
+        txt = self.text(instructions).unsqueeze(1) + self.type_embed[0]  # (B, 1, D)
         tokens = torch.cat([txt.to(img.dtype), pos.to(img.dtype), img], dim=1)  # (B, S, D)
         for block in self.fusion:
             if (
@@ -241,6 +239,29 @@ def apply_peft(model: nn.Module, peft) -> nn.Module:
     return model
 
 
+def as_instructions(value, name: str = "instruction") -> list[str]:
+    """``value`` (one string, or a sequence / array of strings) as a list of strings.
+
+    Raises ``TypeError`` naming ``name`` for anything else (None, bytes, non-string items),
+    which would otherwise be turned into text such as ``"None"`` or fail deep inside.
+    """
+    if isinstance(value, str):
+        return [value]
+    if (
+        value is None
+        or isinstance(value, (bytes, bytearray, Mapping))
+        or not isinstance(value, (Sequence, np.ndarray))
+    ):
+        raise TypeError(f"{name} must be a string or a list of strings, got {type(value).__name__}")
+    bad = [s for s in value if not isinstance(s, str)]
+    if bad:
+        raise TypeError(
+            f"{name} must be a string or a list of strings; it holds a "
+            f"{type(bad[0]).__name__}: {bad[0]!r}"
+        )
+    return [str(s) for s in value]
+
+
 def env_obs_to_frame(obs: Mapping, device: torch.device | str = "cpu") -> dict:
     """Environment observation (single or batched) -> one policy frame.
 
@@ -259,8 +280,7 @@ def env_obs_to_frame(obs: Mapping, device: torch.device | str = "cpu") -> dict:
     pose = torch.as_tensor(np.asarray(obs["pose"]), dtype=torch.float32)
     if not batched:
         depth, pose = depth[None], pose[None]  # (1, H, W, 1), (1, 3)
-    instruction = obs["instruction"]
-    instructions = [instruction] if isinstance(instruction, str) else [str(s) for s in instruction]
+    instructions = as_instructions(obs["instruction"], "obs['instruction']")
     if len(instructions) != rgb.shape[0]:
         raise ValueError(f"{rgb.shape[0]} observations but {len(instructions)} instructions")
     rgb = (

@@ -334,6 +334,6 @@ def run_from_cli(config_name: str, overrides: Sequence[str]) -> int:
 
 
 if __name__ == "__main__":
-    from vla_gr.cli import module_main
+    from vla_gr.configs.command import module_main
 
-    sys.exit(module_main("train"))
+    sys.exit(module_main("train", run_from_cli))

@@ -7,10 +7,9 @@ import importlib.util
 from pathlib import Path
 
 import pytest
-from hydra.errors import ConfigCompositionException
 
 import vla_gr.configs
-from vla_gr.configs import load_config
+from vla_gr.configs import ConfigError, load_config
 
 CONFIG_DIR = Path(vla_gr.configs.__file__).parent
 
@@ -64,7 +63,7 @@ def test_invalid_values_fail_naming_the_key(override, key):
 
 @pytest.mark.parametrize("override", ["training.learning_rate=1", "model.peft.rnk=4"])
 def test_unknown_keys_fail_naming_the_key(override):
-    with pytest.raises(ConfigCompositionException, match=override.split("=")[0]):
+    with pytest.raises(ConfigError, match=override.split("=")[0]):
         load_config("config_cpu", [override])
 
 

@@ -308,6 +308,25 @@ def test_split_reset_seed_is_deterministic():
     b.close()
 
 
+@pytest.mark.parametrize("bad", [-1, 2**40, 1.5, "0", None])
+def test_failed_reset_leaves_the_env_usable(bad):
+    """After a bad first reset the next valid reset + step work; errors quote the input."""
+    env = gym.make(ENV_ID, image_size=32)
+    if bad is None:  # a failed reset of another kind: unknown options
+        with pytest.raises(ValueError, match="unknown reset options"):
+            env.reset(seed=0, options={"nope": 1})
+    else:
+        with pytest.raises((ValueError, TypeError), match=f"seed[ =].*{bad!r}"):
+            env.reset(seed=bad)
+    with pytest.raises(RuntimeError, match="before reset"):
+        env.step(np.zeros(3, np.float32))
+    obs, info = env.reset(seed=0)
+    assert info["episode_id"] == "val-000000"
+    obs, _, terminated, truncated, info = env.step(np.array([0.5, 0.0, -1.0], np.float32))
+    assert obs["rgb"].shape == (32, 32, 3) and not terminated and info["steps"] == 1
+    env.close()
+
+
 # ----------------------------------------------------------------------------- vector envs
 
 

@@ -188,6 +188,10 @@ def collect(cfg) -> dict:
         "seed": cfg.seed,
         "vla_gr_version": __version__,
     }
+    if cfg.env.episodes:  # a bad episodes file fails before the store is created
+        from vla_gr.envs.episodes import load_episodes
+
+        load_episodes(cfg.env.episodes)
     store = open_output_store(path, c.mode, cfg.env.image_size, info)
     wanted = list(range(c.first_episode, c.first_episode + c.num_episodes))
     present = set(store.episode_indices.tolist())
@@ -242,15 +246,11 @@ def run_from_cli(config_name: str, overrides: Sequence[str]) -> int:
     from vla_gr.configs import load_config
 
     _, cfg = load_config(config_name, overrides)
-    try:
-        collect(cfg)
-    except (FileExistsError, StoreError) as err:
-        log.error("%s", err)
-        return 2
+    collect(cfg)  # an existing or mismatched store: a user error (exit code 2)
     return 0
 
 
 if __name__ == "__main__":
-    from vla_gr.cli import module_main
+    from vla_gr.configs.command import module_main
 
-    sys.exit(module_main("collect"))
+    sys.exit(module_main("data.collect", run_from_cli))

@@ -244,11 +244,13 @@ class ObjectNavEnv(gym.Env):
     # ------------------------------------------------------------------ gymnasium API
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
         options = dict(options or {})
         unknown = set(options) - {"episode", "house"}
         if unknown:
             raise ValueError(f"unknown reset options {sorted(unknown)}; use 'episode', 'house'")
+        if seed is not None:
+            self._check_seed(seed)
+        super().reset(seed=seed)
         if self.spec is not None and self.spec.max_episode_steps:
             self.max_episode_steps = int(self.spec.max_episode_steps)
         house = options.get("house")
@@ -343,10 +345,22 @@ class ObjectNavEnv(gym.Env):
             raise RuntimeError("no episode: call reset() first")
         return self._scene
 
+    def _check_seed(self, seed) -> None:
+        """Raise (quoting ``seed``) unless it is an episode index of this env."""
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+            raise TypeError(f"seed must be an int (the episode index) or None, got {seed!r}")
+        if seed < 0:
+            raise ValueError(f"seed={seed} must be >= 0 (it selects the episode)")
+        from vla_gr.envs.house import SPLIT_SIZE
+
+        limit = SPLIT_SIZE * self.episodes_per_scene
+        if self.episode_list is None and seed >= limit:
+            raise ValueError(
+                f"seed={seed} must be < {limit}: split {self.split!r} has {limit} episodes"
+            )
+
     def _episode_at(self, seed: int | None, house: House | None):
         index = self._episode_index + 1 if seed is None else int(seed)
-        if index < 0:
-            raise ValueError(f"seed={seed} must be >= 0 (it selects the episode)")
         self._episode_index = index
         if self.episode_list is not None:
             return self.episode_list[index % len(self.episode_list)], house
