@@ -1,0 +1,166 @@
+"""The language-grounded goal head: which pixels show THE object the instruction means.
+
+S2's perception. Input: one RGB-D frame and the instruction; output: a per-pixel logit that
+the pixel belongs to the goal instance (not any object of its category: the same-category
+distractors are negatives) and a per-frame logit that the goal is visible at all.
+
+Architecture: a small U-Net (stride-2 encoder, nearest-upsampling decoder with skips) whose
+every stage is FiLM-conditioned on the instruction embedding (the frozen MiniLM sentence
+encoder by default, or the hashed bag of words). The per-pixel likelihood feeds the GR field
+(:mod:`vla_gr.core.gr_field`); losses and metrics are in :mod:`.losses`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from vla_gr.core.encoders import build_text_encoder
+
+__all__ = ["GoalHead", "GoalHeadConfig"]
+
+TEXT_ENCODERS = ("minilm", "hashed")
+
+
+@dataclass
+class GoalHeadConfig:
+    """Sizes of the goal head (``model.goal_head.*``)."""
+
+    channels: list[int] = field(default_factory=lambda: [32, 64, 96])  # encoder stage widths
+    stem_channels: int = 16  # full-resolution features kept for the last skip
+    text_encoder: str = "minilm"
+    text_dim: int = 128  # width of the projected instruction embedding
+    text_buckets: int = 4096  # hashed encoder vocabulary
+    max_depth: float = 10.0  # metres; depth is clipped and scaled to [-1, 1]
+
+    def __post_init__(self) -> None:
+        if not self.channels or min(self.channels) < 1:
+            raise ValueError(f"goal_head.channels={self.channels} must be positive widths")
+        if self.text_encoder not in TEXT_ENCODERS:
+            raise ValueError(
+                f"goal_head.text_encoder={self.text_encoder!r} is not valid; "
+                f"choose one of {list(TEXT_ENCODERS)}"
+            )
+        for key in ("stem_channels", "text_dim", "text_buckets", "max_depth"):
+            if not getattr(self, key) > 0:
+                raise ValueError(f"goal_head.{key}={getattr(self, key)} must be > 0")
+
+
+def _groups(channels: int) -> int:
+    g = max(1, min(8, channels // 4))
+    while channels % g:
+        g -= 1
+    return g
+
+
+class _FiLMConv(nn.Module):
+    """conv 3x3 (stride s) -> GroupNorm -> FiLM(text) -> SiLU -> conv 3x3 -> GroupNorm -> SiLU."""
+
+    def __init__(self, c_in: int, c_out: int, text_dim: int, stride: int = 1) -> None:
+        super().__init__()
+        self.conv1 = nn.Conv2d(c_in, c_out, 3, stride=stride, padding=1)
+        self.norm1 = nn.GroupNorm(_groups(c_out), c_out)
+        self.film = nn.Linear(text_dim, 2 * c_out)
+        nn.init.zeros_(self.film.weight)
+        nn.init.zeros_(self.film.bias)
+        self.conv2 = nn.Conv2d(c_out, c_out, 3, padding=1)
+        self.norm2 = nn.GroupNorm(_groups(c_out), c_out)
+
+    def forward(self, x: torch.Tensor, text: torch.Tensor) -> torch.Tensor:
+        """x (B, C_in, H, W), text (B, E) -> (B, C_out, H / s, W / s)."""
+        h = self.norm1(self.conv1(x))  # (B, C, H', W')
+        gamma, beta = self.film(text)[:, :, None, None].chunk(2, dim=1)  # (B, C, 1, 1) each
+        h = F.silu(h * (1.0 + gamma) + beta)  # (B, C, H', W')
+        return F.silu(self.norm2(self.conv2(h)))  # (B, C, H', W')
+
+
+class GoalHead(nn.Module):
+    """Per-pixel goal-instance logits and a per-frame visibility logit (see module docstring)."""
+
+    def __init__(self, config: GoalHeadConfig | None = None) -> None:
+        super().__init__()
+        self.config = c = config or GoalHeadConfig()
+        self.text = build_text_encoder(c.text_encoder, c.text_dim, c.text_buckets)
+        self.stem = _FiLMConv(4, c.stem_channels, c.text_dim)
+        widths = [c.stem_channels, *c.channels]
+        self.down = nn.ModuleList(
+            _FiLMConv(a, b, c.text_dim, stride=2) for a, b in zip(widths[:-1], widths[1:])
+        )
+        # decoder stage i merges the upsampled deeper map with the encoder skip at its scale
+        self.up = nn.ModuleList(
+            _FiLMConv(widths[i + 1] + widths[i], widths[i], c.text_dim)
+            for i in reversed(range(len(c.channels)))
+        )
+        self.pixel_logit = nn.Conv2d(c.stem_channels, 1, 1)
+        self.visible_logit = nn.Sequential(
+            nn.Linear(2 * widths[-1], widths[-1]), nn.SiLU(), nn.Linear(widths[-1], 1)
+        )
+
+    @property
+    def stride(self) -> int:
+        """Input sides must be divisible by this (one halving per encoder stage)."""
+        return 2 ** len(self.config.channels)
+
+    def encode_text(self, instructions: Sequence[str]) -> torch.Tensor:
+        """``B`` instructions -> (B, E)."""
+        if isinstance(instructions, str) or not all(isinstance(t, str) for t in instructions):
+            raise TypeError("instructions must be a sequence of str, one per frame")
+        return self.text(list(instructions))  # (B, E)
+
+    def _inputs(self, rgb: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
+        """rgb (B, 3, H, W) uint8 or [0, 1], depth (B, 1, H, W) m -> (B, 4, H, W) in [-1, 1]."""
+        if rgb.dim() != 4 or rgb.shape[1] != 3:
+            raise ValueError(f"rgb must be (B, 3, H, W); got {tuple(rgb.shape)}")
+        if depth.shape != (rgb.shape[0], 1, *rgb.shape[2:]):
+            raise ValueError(f"depth must be (B, 1, H, W) like rgb; got {tuple(depth.shape)}")
+        H, W = rgb.shape[2:]
+        if H % self.stride or W % self.stride:
+            raise ValueError(f"image sides {(H, W)} must be divisible by {self.stride}")
+        if rgb.dtype == torch.uint8:
+            rgb = rgb.float() / 255.0
+        d = depth.float().clamp(0.0, self.config.max_depth) / self.config.max_depth
+        return torch.cat([rgb.float() * 2.0 - 1.0, d * 2.0 - 1.0], dim=1)  # (B, 4, H, W)
+
+    def forward(
+        self, rgb: torch.Tensor, depth: torch.Tensor, instructions: Sequence[str]
+    ) -> dict[str, torch.Tensor]:
+        """Goal logits of ``B`` frames.
+
+        Args:
+            rgb: (B, 3, H, W) uint8 or float in [0, 1].
+            depth: (B, 1, H, W) metres.
+            instructions: ``B`` strings.
+
+        Returns:
+            ``pixel_logits`` (B, H, W) and ``visible_logits`` (B,).
+        """
+        x = self._inputs(rgb, depth)  # (B, 4, H, W)
+        text = self.encode_text(instructions)  # (B, E)
+        if text.shape[0] != x.shape[0]:
+            raise ValueError(f"{text.shape[0]} instructions for {x.shape[0]} frames")
+        text = text.to(x.dtype)
+        skips = [self.stem(x, text)]  # [(B, C0, H, W)]
+        for stage in self.down:
+            skips.append(stage(skips[-1], text))  # (B, C_i, H / 2^i, W / 2^i)
+        h = skips.pop()  # (B, C_last, H / s, W / s)
+        pooled = torch.cat([h.mean(dim=(2, 3)), h.amax(dim=(2, 3))], dim=1)  # (B, 2 C_last)
+        for stage in self.up:
+            skip = skips.pop()  # (B, C_i, 2h, 2w)
+            h = F.interpolate(h, size=skip.shape[2:], mode="nearest")  # (B, C_{i+1}, 2h, 2w)
+            h = stage(torch.cat([h, skip], dim=1), text)  # (B, C_i, 2h, 2w)
+        return {
+            "pixel_logits": self.pixel_logit(h)[:, 0],  # (B, H, W)
+            "visible_logits": self.visible_logit(pooled)[:, 0],  # (B,)
+        }
+
+    @torch.no_grad()
+    def likelihood(
+        self, rgb: torch.Tensor, depth: torch.Tensor, instructions: Sequence[str]
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Probabilities: per pixel (B, H, W) and goal visible per frame (B,)."""
+        out = self.forward(rgb, depth, instructions)
+        return torch.sigmoid(out["pixel_logits"]), torch.sigmoid(out["visible_logits"])

@@ -1,0 +1,111 @@
+"""Losses and metrics of the goal head (pure functions; :mod:`.goal_head` is the model).
+
+Targets are the goal instance's mask only, so a pixel of a same-category distractor is a
+negative like the floor. A frame counts as "goal visible" when the goal covers at least
+``min_pixels`` pixels (the same threshold as the evaluation's failure causes).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import torch
+import torch.nn.functional as F
+
+__all__ = ["goal_head_loss", "mask_confusion", "confusion_metrics", "visible_targets"]
+
+
+def visible_targets(target: torch.Tensor, min_pixels: int) -> torch.Tensor:
+    """(B, H, W) bool goal masks -> (B,) float: 1 where the goal covers >= ``min_pixels``."""
+    return (target.flatten(1).sum(dim=1) >= min_pixels).float()  # (B,)
+
+
+def goal_head_loss(
+    pixel_logits: torch.Tensor,
+    visible_logits: torch.Tensor,
+    target: torch.Tensor,
+    min_pixels: int = 4,
+    pos_weight: float = 4.0,
+    dice_weight: float = 1.0,
+    visible_weight: float = 0.5,
+) -> dict[str, torch.Tensor]:
+    """Weighted BCE per pixel + soft Dice on frames showing the goal + BCE on visibility.
+
+    Args:
+        pixel_logits: (B, H, W).
+        visible_logits: (B,).
+        target: (B, H, W) bool, the goal instance's pixels.
+        min_pixels: goal pixels for a frame to count as "goal visible".
+        pos_weight: weight of goal pixels in the BCE (they are rare).
+        dice_weight, visible_weight: weights of the Dice and visibility terms.
+
+    Returns:
+        ``loss`` (scalar) and its parts ``pixel_bce``, ``dice``, ``visible_bce``.
+    """
+    if pixel_logits.shape != target.shape:
+        raise ValueError(
+            f"pixel_logits {tuple(pixel_logits.shape)} and target {tuple(target.shape)} differ"
+        )
+    t = target.float()  # (B, H, W)
+    weight = torch.tensor(pos_weight, dtype=pixel_logits.dtype, device=pixel_logits.device)
+    pixel_bce = F.binary_cross_entropy_with_logits(pixel_logits, t, pos_weight=weight)
+    visible = visible_targets(target, min_pixels)  # (B,)
+    p = torch.sigmoid(pixel_logits).flatten(1)  # (B, H*W)
+    inter = (p * t.flatten(1)).sum(dim=1)  # (B,)
+    dice_per = 1.0 - (2.0 * inter + 1.0) / (p.sum(dim=1) + t.flatten(1).sum(dim=1) + 1.0)  # (B,)
+    shown = target.flatten(1).any(dim=1).float()  # (B,)
+    dice = (dice_per * shown).sum() / shown.sum().clamp(min=1.0)
+    visible_bce = F.binary_cross_entropy_with_logits(visible_logits, visible)
+    loss = pixel_bce + dice_weight * dice + visible_weight * visible_bce
+    return {"loss": loss, "pixel_bce": pixel_bce, "dice": dice, "visible_bce": visible_bce}
+
+
+def mask_confusion(
+    pixel_prob: torch.Tensor,
+    visible_prob: torch.Tensor,
+    target: torch.Tensor,
+    threshold: float = 0.5,
+    min_pixels: int = 4,
+) -> dict[str, int]:
+    """Counts for precision / recall / accuracy, to be summed over batches.
+
+    Args:
+        pixel_prob: (B, H, W) per-pixel goal probability.
+        visible_prob: (B,) per-frame goal-visible probability.
+        target: (B, H, W) bool goal masks.
+
+    Returns:
+        pixel ``tp``, ``fp``, ``fn`` and frame ``frames``, ``frames_correct``,
+        ``frames_visible`` (ints).
+    """
+    pred = pixel_prob >= threshold  # (B, H, W)
+    tgt = target.bool()
+    visible = visible_targets(tgt, min_pixels).bool()  # (B,)
+    frame_pred = visible_prob >= threshold  # (B,)
+    return {
+        "tp": int((pred & tgt).sum()),
+        "fp": int((pred & ~tgt).sum()),
+        "fn": int((~pred & tgt).sum()),
+        "frames": int(tgt.shape[0]),
+        "frames_correct": int((frame_pred == visible).sum()),
+        "frames_visible": int(visible.sum()),
+    }
+
+
+def confusion_metrics(counts: Mapping[str, int]) -> dict[str, float]:
+    """Pixel precision, recall, IoU and frame "goal visible" accuracy from summed counts.
+
+    A ratio with an empty denominator is reported as NaN, not 0 or 1.
+    """
+
+    def ratio(num: float, den: float) -> float:
+        return float(num) / float(den) if den > 0 else float("nan")
+
+    tp, fp, fn = counts["tp"], counts["fp"], counts["fn"]
+    return {
+        "pixel_precision": ratio(tp, tp + fp),
+        "pixel_recall": ratio(tp, tp + fn),
+        "pixel_iou": ratio(tp, tp + fp + fn),
+        "visible_accuracy": ratio(counts["frames_correct"], counts["frames"]),
+        "visible_rate": ratio(counts["frames_visible"], counts["frames"]),
+    }
