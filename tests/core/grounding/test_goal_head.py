@@ -70,7 +70,7 @@ def test_bad_inputs_are_named():
         head(rgb[..., :15, :15], depth[..., :15, :15], ["x"])
     with pytest.raises(ValueError, match="1 instructions for 2 frames"):
         head(*_frames(B=2), ["x"])
-    with pytest.raises(ValueError, match="goal_head.text_encoder"):
+    with pytest.raises(ValueError, match="model.goal_head.text_encoder"):
         GoalHeadConfig(text_encoder="clip")
 
 

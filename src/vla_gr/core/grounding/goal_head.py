@@ -19,11 +19,11 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from vla_gr.core.encoders import build_text_encoder
+from vla_gr.core.encoders import TEXT_ENCODERS, build_text_encoder
+from vla_gr.geometry.robot_spec import MAX_DEPTH
+from vla_gr.validation import check_choice, check_positive
 
 __all__ = ["GoalHead", "GoalHeadConfig"]
-
-TEXT_ENCODERS = ("minilm", "hashed")
 
 
 @dataclass
@@ -35,19 +35,14 @@ class GoalHeadConfig:
     text_encoder: str = "minilm"
     text_dim: int = 128  # width of the projected instruction embedding
     text_buckets: int = 4096  # hashed encoder vocabulary
-    max_depth: float = 10.0  # metres; depth is clipped and scaled to [-1, 1]
+    max_depth: float = MAX_DEPTH  # metres; depth is clipped and scaled to [-1, 1]
 
     def __post_init__(self) -> None:
         if not self.channels or min(self.channels) < 1:
-            raise ValueError(f"goal_head.channels={self.channels} must be positive widths")
-        if self.text_encoder not in TEXT_ENCODERS:
-            raise ValueError(
-                f"goal_head.text_encoder={self.text_encoder!r} is not valid; "
-                f"choose one of {list(TEXT_ENCODERS)}"
-            )
+            raise ValueError(f"model.goal_head.channels={self.channels} must be positive widths")
+        check_choice("model.goal_head.text_encoder", self.text_encoder, TEXT_ENCODERS)
         for key in ("stem_channels", "text_dim", "text_buckets", "max_depth"):
-            if not getattr(self, key) > 0:
-                raise ValueError(f"goal_head.{key}={getattr(self, key)} must be > 0")
+            check_positive(f"model.goal_head.{key}", getattr(self, key))
 
 
 def _groups(channels: int) -> int:
