@@ -137,3 +137,30 @@ def test_killed_collect_leaves_a_readable_store(tmp_path):
     store = EpisodeStore.open(path)
     assert not store.has_uncommitted()
     assert store.episode_indices.tolist() == list(range(max(3, n)))  # in order, no duplicates
+
+
+def test_distractor_mask_is_the_goals_same_category_objects():
+    """Episode 5 of val shows distractors: the recorded mask is semantic in their ids."""
+    from vla_gr.data.collect import run_expert_episode
+    from vla_gr.envs.expert import GeodesicExpert
+    from vla_gr.envs.instructions import distractors
+
+    _, cfg = load_config("config_debug", NOISE)
+    env = make_env(env_kwargs_from_config(cfg, "val", semantic=True))
+    expert = GeodesicExpert(env, cfg.expert.noise_std, cfg.expert.noise_prob)
+    record, _ = run_expert_episode(env, expert, 5, cfg.seed)
+    expert.rng = np.random.default_rng((cfg.seed, 5))  # replay with the same noise
+    obs, _ = env.reset(seed=5)
+    expert.reset()
+    u = env.unwrapped
+    ids = distractors(u.house, int(u.goal.instance_id))
+    expected, done = [], False
+    while not done:
+        action = expert.act(obs)
+        expected.append(np.isin(obs["semantic"], ids))
+        obs, _, terminated, truncated, _ = env.step(action)
+        done = terminated or truncated
+    env.close()
+    np.testing.assert_array_equal(record.distractor_mask, np.stack(expected))
+    assert record.distractor_mask.sum() > 100  # this episode shows them
+    assert not (record.distractor_mask & record.goal_mask).any()

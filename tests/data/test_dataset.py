@@ -53,6 +53,9 @@ def test_windows_match_store_exactly(store_path, in_memory):
                 item["depth"].numpy(), rec.depth[obs_idx].transpose(0, 3, 1, 2)
             )
             np.testing.assert_array_equal(item["goal_mask"][:, 0].numpy(), rec.goal_mask[obs_idx])
+            np.testing.assert_array_equal(
+                item["distractor_mask"][:, 0].numpy(), rec.distractor_mask[obs_idx]
+            )
             expected_rgb = rec.rgb[obs_idx].transpose(0, 3, 1, 2) / 255.0
             np.testing.assert_allclose(item["rgb"].numpy(), expected_rgb, rtol=1e-6)
             assert item["rgb"].shape == (n_obs, 3, 8, 8) and item["rgb"].dtype == torch.float32

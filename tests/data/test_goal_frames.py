@@ -32,6 +32,9 @@ def test_items_are_the_stored_frames(store):
     assert item["instruction"] == store.instruction(1)
     raw = store.episode(1)["depth"][2, ..., 0]
     np.testing.assert_array_equal(item["depth"][0].numpy(), raw)
+    distractors = store.episode(1)["distractor_mask"][2]
+    assert distractors.any()
+    np.testing.assert_array_equal(item["distractor_mask"].numpy(), distractors)
 
 
 def test_visibility_and_balanced_weights(store):
@@ -54,6 +57,10 @@ def test_flip_mirrors_image_and_mask_together(store):
         raw = store.episode(1)["depth"][6, 0, :, 0]
         row = item["depth"][0, 0].numpy()
         np.testing.assert_array_equal(row, raw if left else raw[::-1])
+        others = store.episode(1)["distractor_mask"][6]  # (H, W)
+        np.testing.assert_array_equal(
+            item["distractor_mask"].numpy(), others if left else others[:, ::-1]
+        )
 
 
 def test_bad_arguments(store):

@@ -33,6 +33,8 @@ def test_round_trip_and_layout(tmp_path):
     assert store.spec(1) == rec.spec and store.metrics(2) == {"success": 1.0, "spl": 1.0}
     g = zarr.open_group(str(path), mode="r")
     assert g["data/rgb"].shape == (15, 8, 8, 3) and g["data/goal_mask"].dtype == bool
+    assert g["data/distractor_mask"].shape == (15, 8, 8) and ep["distractor_mask"].any()
+    assert not (ep["distractor_mask"] & ep["goal_mask"]).any()
     assert g["data/rgb"].compressors  # compressed
     assert g.attrs["format_version"] == 2
 

@@ -140,8 +140,8 @@ def test_skip_mode_hides_damaged_episodes(tmp_path, caplog):
 
 
 def _legacy(path):
-    """A format-1 store: no checksum codec; then episodes appended through the library."""
-    EpisodeStore.create(path, image_size=8, chunk_bytes=1024)
+    """A format-1 store: no checksum codec, no distractor_mask; then episodes appended."""
+    EpisodeStore.create(path, image_size=8, chunk_bytes=1024, distractors=False)
     for meta in path.glob("*/*/zarr.json"):
         doc = json.loads(meta.read_text())
         doc["codecs"] = [c for c in doc["codecs"] if c["name"] != "crc32c"]
@@ -266,3 +266,15 @@ def test_store_copy_adds_checksums_and_salvages_intact_episodes(tmp_path, capsys
     assert main(["store", "copy", "--skip-damaged", str(damaged), str(salvaged)]) == 0
     kept = EpisodeStore.open(salvaged)
     assert kept.episode_indices.tolist() == [2] and kept.damage == []
+
+
+def test_store_without_distractor_mask_opens_and_names_the_key_on_read(tmp_path):
+    old = _legacy(tmp_path / "old.zarr")
+    store = EpisodeStore.open(old)
+    assert "distractor_mask" not in store.frame_keys and "goal_mask" in store.episode(0)
+    with pytest.raises(StoreError, match="no data/distractor_mask.*collect it again"):
+        store.episode(0, keys=("distractor_mask",))
+    with pytest.raises(StoreError, match="vla-gr store copy` cannot"):
+        store.data_array("distractor_mask")
+    items = EpisodeWindowDataset(store, n_obs_steps=2, horizon=4, split="all")
+    assert "distractor_mask" not in items[0] and "goal_mask" in items[0]

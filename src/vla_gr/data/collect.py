@@ -66,8 +66,10 @@ def run_expert_episode(env, expert, index: int, seed: int = 0) -> tuple[EpisodeR
 
     Step t stores the observation before action t and the expert's noise-free label for it;
     the executed action may be noisy. ``seed`` and ``index`` seed the expert's noise.
-    The env must be made with ``semantic=True`` (for the goal mask).
+    The env must be made with ``semantic=True`` (for the goal and distractor masks).
     """
+    from vla_gr.envs.instructions import distractors
+
     expert.rng = np.random.default_rng((seed, index))
     obs, info = env.reset(seed=index)
     if "semantic" not in obs:
@@ -75,7 +77,8 @@ def run_expert_episode(env, expert, index: int, seed: int = 0) -> tuple[EpisodeR
     expert.reset()
     u = env.unwrapped
     goal_id = int(u.goal.instance_id)
-    rgb, depth, pose, mask, labels = [], [], [], [], []
+    distractor_ids = np.asarray(distractors(u.house, goal_id), dtype=np.int32)  # (K,)
+    rgb, depth, pose, mask, others, labels = [], [], [], [], [], []
     done = False
     while not done:
         action = expert.act(obs)  # (3,) executed
@@ -83,6 +86,7 @@ def run_expert_episode(env, expert, index: int, seed: int = 0) -> tuple[EpisodeR
         depth.append(obs["depth"])  # (H, W, 1)
         pose.append(obs["pose"])  # (3,)
         mask.append(obs["semantic"] == goal_id)  # (H, W)
+        others.append(np.isin(obs["semantic"], distractor_ids))  # (H, W)
         labels.append(np.asarray(expert.last_label, dtype=np.float32))  # (3,)
         obs, _, terminated, truncated, info = env.step(action)
         done = terminated or truncated
@@ -94,6 +98,7 @@ def run_expert_episode(env, expert, index: int, seed: int = 0) -> tuple[EpisodeR
         pose=np.stack(pose),  # (T, 3)
         action=np.stack(labels),  # (T, 3)
         goal_mask=np.stack(mask),  # (T, H, W)
+        distractor_mask=np.stack(others),  # (T, H, W)
         instruction=str(spec.get("instruction", obs.get("instruction", ""))),
         spec=_jsonable(spec),
         metrics=_jsonable(info),

@@ -18,7 +18,7 @@ import torch
 from torch.utils.data import Dataset
 
 from vla_gr.data.normalize import MinMaxNormalizer, normalizers_from_stats
-from vla_gr.data.store import FRAME_KEYS, EpisodeStore
+from vla_gr.data.store import EpisodeStore
 
 log = logging.getLogger(__name__)
 
@@ -71,7 +71,8 @@ class EpisodeWindowDataset(Dataset):
     Each item is a dict:
       ``rgb`` (T, 3, H, W) float32 in [0, 1] (uint8 with ``rgb_uint8=True``),
       ``depth`` (T, 1, H, W) float32 metres, ``pose`` (T, 3) float32,
-      ``goal_mask`` (T, 1, H, W) bool, ``obs_is_pad`` (T,) bool,
+      ``goal_mask`` (T, 1, H, W) bool, ``distractor_mask`` (T, 1, H, W) bool (when the
+      store holds it), ``obs_is_pad`` (T,) bool,
       ``action`` (horizon, 3) float32, ``action_is_pad`` (horizon,) bool,
       ``instruction`` str, ``episode`` int (store row), ``step`` int (t),
     with T = ``n_obs_steps``. With ``normalize=True`` pose and action are mapped to
@@ -145,7 +146,7 @@ class EpisodeWindowDataset(Dataset):
         self.cache_episodes = max(1, int(cache_episodes))
         self._cache: OrderedDict[int, dict[str, np.ndarray]] = OrderedDict()
         if in_memory:
-            self._frames = {k: self._load_selected(k) for k in FRAME_KEYS}
+            self._frames = {k: self._load_selected(k) for k in store.frame_keys}
         self._instructions = store.instructions()
         stats = store.stats
         self.normalizers: dict[str, MinMaxNormalizer] = (
@@ -172,7 +173,9 @@ class EpisodeWindowDataset(Dataset):
         frames = self._cache.get(j)
         if frames is None:
             start, n = int(self._store_starts[j]), int(self._lengths[j])
-            frames = {k: self.store.data_array(k)[start : start + n] for k in FRAME_KEYS}
+            frames = {
+                k: self.store.data_array(k)[start : start + n] for k in self.store.frame_keys
+            }
             self._cache[j] = frames
             while len(self._cache) > self.cache_episodes:
                 self._cache.popitem(last=False)
@@ -208,7 +211,7 @@ class EpisodeWindowDataset(Dataset):
             pose = self.normalizers["pose"].normalize(pose)
             action = self.normalizers["action"].normalize(action)
         e = int(self.episode_ids[j])
-        return {
+        item = {
             "rgb": rgb.contiguous(),
             "depth": depth.contiguous(),
             "pose": pose,
@@ -220,6 +223,10 @@ class EpisodeWindowDataset(Dataset):
             "episode": e,
             "step": t,
         }
+        if "distractor_mask" in self.store.frame_keys:
+            distractors = self._gather("distractor_mask", j, obs_idx)  # (T, H, W)
+            item["distractor_mask"] = torch.from_numpy(distractors)[:, None]  # (T, 1, H, W)
+        return item
 
     def get_normalizers(self) -> dict[str, MinMaxNormalizer]:
         """Per-key normalisers (``action``, ``pose``) from the store's statistics."""

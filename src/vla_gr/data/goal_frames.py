@@ -27,7 +27,7 @@ class GoalFrameDataset(Dataset):
     """Frames of the given store rows (all committed episodes when ``episodes`` is None).
 
     Each item: ``rgb`` (3, H, W) uint8, ``depth`` (1, H, W) float32 metres, ``goal_mask``
-    (H, W) bool, ``instruction`` str, ``episode`` int (store row), ``step`` int.
+    (H, W) bool, ``distractor_mask`` (H, W) bool (when the store holds it), ``instruction`` str, ``episode`` int (store row), ``step`` int.
     ``flip=True`` mirrors a random half of the items left-right (instructions never say
     left or right, so the label is unchanged).
     """
@@ -46,18 +46,23 @@ class GoalFrameDataset(Dataset):
         rows = range(store.num_episodes) if episodes is None else [int(e) for e in episodes]
         if len(rows) == 0:
             raise ValueError(f"no episodes selected from store {store.path}")
-        rgb, depth, mask, where = [], [], [], []
+        rgb, depth, mask, others, where = [], [], [], [], []
         self.instructions = [store.instruction(e) for e in rows]
+        has_distractors = "distractor_mask" in store.frame_keys
+        keys = ("rgb", "depth", "goal_mask") + (("distractor_mask",) if has_distractors else ())
         for i, e in enumerate(rows):
-            ep = store.episode(e, keys=("rgb", "depth", "goal_mask"))
+            ep = store.episode(e, keys=keys)
             steps = np.arange(0, len(ep["rgb"]), frame_stride)  # (n,)
             rgb.append(ep["rgb"][steps])  # (n, H, W, 3)
             depth.append(ep["depth"][steps])  # (n, H, W, 1)
             mask.append(ep["goal_mask"][steps])  # (n, H, W)
+            if has_distractors:
+                others.append(ep["distractor_mask"][steps])  # (n, H, W)
             where.append(np.stack([np.full(len(steps), i), steps, np.full(len(steps), e)], 1))
         self.rgb = np.concatenate(rgb)  # (N, H, W, 3)
         self.depth = np.concatenate(depth)  # (N, H, W, 1)
         self.goal_mask = np.concatenate(mask)  # (N, H, W)
+        self.distractor_mask = np.concatenate(others) if has_distractors else None  # (N, H, W)
         self.where = np.concatenate(where)  # (N, 3) instruction slot, step, store row
         self.visible = self.goal_mask.reshape(len(self.goal_mask), -1).sum(1) >= min_pixels
         self.flip = flip
@@ -81,14 +86,17 @@ class GoalFrameDataset(Dataset):
         slot, step, row = (int(v) for v in self.where[i])
         rgb = self.rgb[i].transpose(2, 0, 1)  # (3, H, W)
         depth = self.depth[i].transpose(2, 0, 1)  # (1, H, W)
-        mask = self.goal_mask[i]  # (H, W)
+        masks = {"goal_mask": self.goal_mask[i]}  # (H, W)
+        if self.distractor_mask is not None:
+            masks["distractor_mask"] = self.distractor_mask[i]  # (H, W)
         if self.flip and self._rng.random() < 0.5:
-            rgb, depth, mask = rgb[..., ::-1], depth[..., ::-1], mask[..., ::-1]
-        return {
+            rgb, depth = rgb[..., ::-1], depth[..., ::-1]
+            masks = {k: m[..., ::-1] for k, m in masks.items()}
+        item = {
             "rgb": torch.from_numpy(np.ascontiguousarray(rgb)),
             "depth": torch.from_numpy(np.ascontiguousarray(depth, dtype=np.float32)),
-            "goal_mask": torch.from_numpy(np.ascontiguousarray(mask)),
             "instruction": self.instructions[slot],
             "episode": row,
             "step": step,
         }
+        return item | {k: torch.from_numpy(np.ascontiguousarray(m)) for k, m in masks.items()}

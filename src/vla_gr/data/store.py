@@ -8,6 +8,8 @@ Layout (zarr format 3)::
     data/pose       (N, 3)       float32   (x, y, yaw) from the episode start
     data/action     (N, 3)       float32   the expert's noise-free label
     data/goal_mask  (N, H, W)    bool      instance segmentation == goal id
+    data/distractor_mask (N, H, W) bool    instance segmentation in the goal's same-category
+                                           distractors (absent from stores written before it)
     meta/episode_ends   (E,) int64  cumulative frame counts
     meta/episode_index  (E,) int64  index of the episode in its split
     meta/instruction    (E,) str
@@ -35,7 +37,7 @@ import json
 import logging
 import os
 import shutil
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -61,7 +63,10 @@ FORMAT_NAME = "vla_gr.episode_store"
 FORMAT_VERSION = 2
 #: Format versions this library reads; 1 has no chunk checksums.
 READABLE_VERSIONS = (1, 2)
-FRAME_KEYS: tuple[str, ...] = ("rgb", "depth", "pose", "action", "goal_mask")
+FRAME_KEYS: tuple[str, ...] = ("rgb", "depth", "pose", "action", "goal_mask", "distractor_mask")
+#: Frame keys that stores written before them lack (format 1 and early format 2); such a
+#: store opens, and reading the key raises ``StoreError`` saying how to rebuild it.
+OPTIONAL_FRAME_KEYS: tuple[str, ...] = ("distractor_mask",)
 META_KEYS: tuple[str, ...] = ("episode_ends", "episode_index", "instruction", "spec", "metrics")
 #: Keys whose statistics are kept (and what ``stats`` holds for depth: one channel).
 STATS_KEYS: tuple[str, ...] = ("action", "pose", "depth")
@@ -81,7 +86,9 @@ class EpisodeRecord:
     """One episode ready to be stored; T steps of H x W images.
 
     rgb (T, H, W, 3) uint8, depth (T, H, W, 1) float32, pose (T, 3) float32,
-    action (T, 3) float32, goal_mask (T, H, W) bool.
+    action (T, 3) float32, goal_mask (T, H, W) bool, distractor_mask (T, H, W) bool (the
+    pixels of the goal's same-category distractors; None only for episodes copied from a
+    store that lacks it).
     """
 
     episode_index: int
@@ -93,6 +100,7 @@ class EpisodeRecord:
     instruction: str
     spec: dict = field(default_factory=dict)
     metrics: dict = field(default_factory=dict)
+    distractor_mask: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.rgb = np.asarray(self.rgb, dtype=np.uint8)
@@ -100,6 +108,8 @@ class EpisodeRecord:
         self.pose = np.asarray(self.pose, dtype=np.float32)
         self.action = np.asarray(self.action, dtype=np.float32)
         self.goal_mask = np.asarray(self.goal_mask, dtype=bool)
+        if self.distractor_mask is not None:
+            self.distractor_mask = np.asarray(self.distractor_mask, dtype=bool)
         T = self.rgb.shape[0] if self.rgb.ndim == 4 else -1
         if T < 1 or self.rgb.shape[-1] != 3:
             raise ValueError(f"rgb must be (T, H, W, 3) with T >= 1, got {self.rgb.shape}")
@@ -109,8 +119,11 @@ class EpisodeRecord:
             "pose": (T, 3),
             "action": (T, 3),
             "goal_mask": (T, H, W),
+            "distractor_mask": (T, H, W),
         }
         for key, shape in expected.items():
+            if getattr(self, key) is None:
+                continue
             got = getattr(self, key).shape
             if got != shape:
                 raise ValueError(
@@ -125,8 +138,8 @@ class EpisodeRecord:
         return int(self.rgb.shape[0])
 
     def frames(self) -> dict[str, np.ndarray]:
-        """The per-step arrays by store key."""
-        return {k: getattr(self, k) for k in FRAME_KEYS}
+        """The per-step arrays by store key (without ``distractor_mask`` when it is None)."""
+        return {k: getattr(self, k) for k in FRAME_KEYS if getattr(self, k) is not None}
 
 
 def _frames_per_chunk(frame_shape: tuple[int, ...], itemsize: int, target_bytes: int) -> int:
@@ -144,6 +157,7 @@ def _frame_specs(image_size: tuple[int, int]) -> dict[str, tuple[tuple[int, ...]
         "pose": ((3,), "float32"),
         "action": ((3,), "float32"),
         "goal_mask": ((H, W), "bool"),
+        "distractor_mask": ((H, W), "bool"),
     }
 
 
@@ -179,6 +193,7 @@ class EpisodeStore:
         overwrite: bool = False,
         info: Mapping | None = None,
         chunk_bytes: int = 1 << 20,
+        distractors: bool = True,
     ) -> EpisodeStore:
         """Create an empty store at ``path`` for ``image_size`` (S or (H, W)) images.
 
@@ -186,6 +201,8 @@ class EpisodeStore:
         ``info`` (JSON-able) is kept in the root attributes (e.g. the collect config).
         The store is built under a temporary sibling name and renamed into place, so
         ``path`` is either absent or a complete, valid empty store (never half-created).
+        ``distractors=False`` leaves out ``data/distractor_mask`` (only to copy a store that
+        lacks it).
         """
         path = Path(path)
         if isinstance(image_size, int):
@@ -204,6 +221,8 @@ class EpisodeStore:
         group = zarr.open_group(str(building), mode="w-", zarr_format=3)
         data, meta = group.create_group("data"), group.create_group("meta")
         for key, (shape, dtype) in _frame_specs(tuple(image_size)).items():
+            if key == "distractor_mask" and not distractors:
+                continue
             itemsize = np.dtype(dtype).itemsize
             shuffle = "bitshuffle" if itemsize > 1 else "shuffle"
             data.create_array(
@@ -288,7 +307,12 @@ class EpisodeStore:
                 f"store {self.path}: format_version={version!r} is not supported "
                 f"(this library reads {list(READABLE_VERSIONS)})"
             )
-        self._data = {k: self._array(f"data/{k}") for k in FRAME_KEYS}
+        data = self._group["data"]
+        self._data = {
+            k: self._array(f"data/{k}")
+            for k in FRAME_KEYS
+            if k not in OPTIONAL_FRAME_KEYS or k in data
+        }
         self._meta = {k: self._array(f"meta/{k}") for k in META_KEYS}
         E = int(attrs.get("num_episodes", -1))
         if E < 0:
@@ -322,6 +346,8 @@ class EpisodeStore:
                 )
         H, W = self.image_size
         for key, (shape, dtype) in _frame_specs((H, W)).items():
+            if key not in self._data:
+                continue
             arr = self._data[key]
             if tuple(arr.shape[1:]) != shape or np.dtype(arr.dtype) != np.dtype(dtype):
                 raise StoreError(
@@ -453,10 +479,21 @@ class EpisodeStore:
         named = {f"data/{k}": a for k, a in self._data.items()}
         return named | {f"meta/{k}": a for k, a in self._meta.items()}
 
+    @property
+    def frame_keys(self) -> tuple[str, ...]:
+        """The frame keys this store holds (``FRAME_KEYS`` less any it was written without)."""
+        return tuple(self._data)
+
     def data_array(self, key: str) -> zarr.Array:
         """The raw zarr array ``data/<key>``; only its first ``num_frames`` rows are committed."""
-        if key not in self._data:
+        if key not in FRAME_KEYS:
             raise KeyError(f"unknown frame key {key!r}; choose one of {list(FRAME_KEYS)}")
+        if key not in self._data:
+            raise StoreError(
+                f"store {self.path} has no data/{key}: it was written before the store recorded "
+                f"{key}; collect it again with `vla-gr collect collect.output=<new store>` "
+                "(`vla-gr store copy` cannot recreate it)"
+            )
         return self._data[key]
 
     def episode_slice(self, e: int) -> slice:
@@ -466,8 +503,9 @@ class EpisodeStore:
         start = int(self._ends[e - 1]) if e > 0 else 0
         return slice(start, int(self._ends[e]))
 
-    def episode(self, e: int, keys=FRAME_KEYS) -> dict[str, np.ndarray]:
-        """Frames of stored episode ``e``: each key -> (T, ...) array."""
+    def episode(self, e: int, keys: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+        """Frames of stored episode ``e``: each key (default: ``frame_keys``) -> (T, ...)."""
+        keys = self.frame_keys if keys is None else keys
         sl = self.episode_slice(e)
         self._require_intact(e)
         return {k: self.data_array(k)[sl] for k in keys}
@@ -509,8 +547,12 @@ class EpisodeStore:
             self.repair()
         T = len(record)
         # 1) frames, 2) per-episode meta, 3) the commit: num_episodes + stats in one write.
-        for key, values in record.frames().items():
-            self._data[key].append(values)
+        frames = record.frames()
+        missing = [k for k in self._data if k not in frames]
+        if missing:
+            raise ValueError(f"episode {record.episode_index} has no {missing}; the store needs it")
+        for key, arr in self._data.items():
+            arr.append(frames[key])
         self._meta["episode_index"].append(np.array([record.episode_index], dtype=np.int64))
         self._meta["instruction"].append(np.array([record.instruction], dtype=str))
         self._meta["spec"].append(np.array([json.dumps(record.spec, sort_keys=True)], dtype=str))
@@ -548,7 +590,7 @@ def fake_episode(
 
     Frame ``t`` is recognisable: ``pose[t] = (t, episode_index, 0)``,
     ``action[t, 0] = (t % 256) / 256`` and every rgb pixel of frame t equals ``t % 256``;
-    the rest is seeded noise.
+    the rest is seeded noise (``distractor_mask`` never overlaps ``goal_mask``).
     """
     rng = np.random.default_rng((seed, episode_index))
     T, S = length, image_size
@@ -557,13 +599,17 @@ def fake_episode(
     action = np.stack(
         [(t % 256) / 256, rng.uniform(-1, 1, T), np.where(t == T - 1, 1.0, -1.0)], axis=1
     )
+    depth = rng.uniform(0.1, 5.0, (T, S, S, 1))
+    goal_mask = rng.random((T, S, S)) > 0.8  # (T, S, S)
+    distractor_mask = (rng.random((T, S, S)) > 0.8) & ~goal_mask  # (T, S, S)
     return EpisodeRecord(
         episode_index=episode_index,
         rgb=rgb.copy(),
-        depth=rng.uniform(0.1, 5.0, (T, S, S, 1)),
+        depth=depth,
         pose=np.stack([t, np.full(T, episode_index, np.float32), np.zeros(T, np.float32)], 1),
         action=action,
-        goal_mask=rng.random((T, S, S)) > 0.8,
+        goal_mask=goal_mask,
+        distractor_mask=distractor_mask,
         instruction=f"find the red chair number {episode_index}",
         spec={"episode_id": episode_index, "scene_seed": int(seed)},
         metrics={"success": 1.0, "spl": 1.0},

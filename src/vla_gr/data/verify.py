@@ -85,10 +85,17 @@ def copy_store(
     """Copy the episodes of ``src`` into a new store ``dst`` in the current format.
 
     Rewrites a format-1 store with checksums; ``on_corrupt="skip"`` salvages the intact
-    episodes of a damaged one. Statistics are recomputed from the copied episodes.
+    episodes of a damaged one. Statistics are recomputed from the copied episodes. A source
+    without ``distractor_mask`` gives a copy without it (only collecting again records it).
     """
     source = EpisodeStore.open(src, mode="r", on_corrupt=on_corrupt)
-    target = EpisodeStore.create(dst, source.image_size, overwrite=overwrite, info=source.info)
+    target = EpisodeStore.create(
+        dst,
+        source.image_size,
+        overwrite=overwrite,
+        info=source.info,
+        distractors="distractor_mask" in source.frame_keys,  # cannot be recreated: re-collect
+    )
     skipped = set(source.damaged_episodes)
     indices = source.episode_indices
     for e in range(source.num_episodes):
