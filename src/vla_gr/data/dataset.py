@@ -173,9 +173,7 @@ class EpisodeWindowDataset(Dataset):
         frames = self._cache.get(j)
         if frames is None:
             start, n = int(self._store_starts[j]), int(self._lengths[j])
-            frames = {
-                k: self.store.data_array(k)[start : start + n] for k in self.store.frame_keys
-            }
+            frames = {k: self.store.data_array(k)[start : start + n] for k in self.store.frame_keys}
             self._cache[j] = frames
             while len(self._cache) > self.cache_episodes:
                 self._cache.popitem(last=False)

@@ -27,7 +27,8 @@ class GoalFrameDataset(Dataset):
     """Frames of the given store rows (all committed episodes when ``episodes`` is None).
 
     Each item: ``rgb`` (3, H, W) uint8, ``depth`` (1, H, W) float32 metres, ``goal_mask``
-    (H, W) bool, ``distractor_mask`` (H, W) bool (when the store holds it), ``instruction`` str, ``episode`` int (store row), ``step`` int.
+    (H, W) bool, ``distractor_mask`` (H, W) bool (when the store holds it), ``instruction``
+    str, ``episode`` int (store row), ``step`` int.
     ``flip=True`` mirrors a random half of the items left-right (instructions never say
     left or right, so the label is unchanged).
     """
