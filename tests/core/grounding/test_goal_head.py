@@ -117,3 +117,34 @@ def test_confusion_counts_and_metrics():
     assert m["visible_accuracy"] == pytest.approx(1 / 2)
     empty = confusion_metrics(dict(counts, tp=0, fp=0))
     assert math.isnan(empty["pixel_precision"])
+
+
+def test_distractor_share_of_predicted_pixels():
+    prob = torch.tensor([[[0.9, 0.6], [0.7, 0.4]], [[0.8, 0.1], [0.1, 0.1]]])  # (2, 2, 2)
+    target = torch.tensor([[[True, False], [False, False]], [[False, False], [False, False]]])
+    others = torch.tensor([[[False, True], [False, True]], [[True, False], [False, False]]])
+    counts = mask_confusion(prob, torch.tensor([0.8, 0.2]), target, distractors=others)
+    # predicted: (0,0,0) goal, (0,0,1) distractor, (0,1,0) floor, (1,0,0) distractor;
+    # (0,1,1) is a distractor pixel below the threshold
+    assert counts["fp_distractor"] == 2 and counts["tp"] == 1 and counts["fp"] == 3
+    assert confusion_metrics(counts)["on_distractor"] == pytest.approx(2 / 4)
+    assert math.isnan(
+        confusion_metrics(mask_confusion(prob, torch.zeros(2), target))["on_distractor"]
+    )
+    nothing = mask_confusion(torch.zeros(2, 2, 2), torch.zeros(2), target, distractors=others)
+    assert nothing["fp_distractor"] == 0 and math.isnan(confusion_metrics(nothing)["on_distractor"])
+
+
+def test_loss_and_metric_defaults_are_the_configs():
+    import inspect
+
+    from vla_gr.core.grounding import GroundingConfig
+
+    c = GroundingConfig()
+    loss = inspect.signature(goal_head_loss).parameters
+    conf = inspect.signature(mask_confusion).parameters
+    for key in ("min_pixels", "pos_weight", "dice_weight", "visible_weight"):
+        assert loss[key].default == getattr(c, key)
+    assert (conf["threshold"].default, conf["min_pixels"].default) == (c.threshold, c.min_pixels)
+    with pytest.raises(ValueError, match="model.grounding.threshold"):
+        GroundingConfig(threshold=1.0)

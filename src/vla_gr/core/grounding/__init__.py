@@ -2,6 +2,7 @@
 
 from vla_gr.core.grounding.goal_head import GoalHead, GoalHeadConfig
 from vla_gr.core.grounding.losses import (
+    GroundingConfig,
     confusion_metrics,
     goal_head_loss,
     mask_confusion,
@@ -11,6 +12,7 @@ from vla_gr.core.grounding.losses import (
 __all__ = [
     "GoalHead",
     "GoalHeadConfig",
+    "GroundingConfig",
     "confusion_metrics",
     "goal_head_loss",
     "mask_confusion",

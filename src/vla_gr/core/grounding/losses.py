@@ -7,12 +7,44 @@ negative like the floor. A frame counts as "goal visible" when the goal covers a
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
 
-__all__ = ["goal_head_loss", "mask_confusion", "confusion_metrics", "visible_targets"]
+from vla_gr.validation import check_positive
+
+__all__ = [
+    "GroundingConfig",
+    "goal_head_loss",
+    "mask_confusion",
+    "confusion_metrics",
+    "visible_targets",
+]
+
+
+@dataclass
+class GroundingConfig:
+    """Loss weights and thresholds of the goal head (``model.grounding.*``)."""
+
+    min_pixels: int = 4  # goal pixels for a frame to count as "goal visible"
+    pos_weight: float = 4.0  # weight of goal pixels in the BCE (they are rare)
+    dice_weight: float = 1.0
+    visible_weight: float = 0.5
+    threshold: float = 0.5  # probability above which a pixel / frame is predicted goal
+
+    def __post_init__(self) -> None:
+        for key in ("min_pixels", "pos_weight"):
+            check_positive(f"model.grounding.{key}", getattr(self, key))
+        for key in ("dice_weight", "visible_weight"):
+            check_positive(f"model.grounding.{key}", getattr(self, key), allow_zero=True)
+        if not 0.0 < self.threshold < 1.0:
+            raise ValueError(f"model.grounding.threshold={self.threshold} must be in (0, 1)")
+
+
+_DEFAULT = GroundingConfig()
 
 
 def visible_targets(target: torch.Tensor, min_pixels: int) -> torch.Tensor:
@@ -24,10 +56,10 @@ def goal_head_loss(
     pixel_logits: torch.Tensor,
     visible_logits: torch.Tensor,
     target: torch.Tensor,
-    min_pixels: int = 4,
-    pos_weight: float = 4.0,
-    dice_weight: float = 1.0,
-    visible_weight: float = 0.5,
+    min_pixels: int = _DEFAULT.min_pixels,
+    pos_weight: float = _DEFAULT.pos_weight,
+    dice_weight: float = _DEFAULT.dice_weight,
+    visible_weight: float = _DEFAULT.visible_weight,
 ) -> dict[str, torch.Tensor]:
     """Weighted BCE per pixel + soft Dice on frames showing the goal + BCE on visibility.
 
@@ -64,8 +96,9 @@ def mask_confusion(
     pixel_prob: torch.Tensor,
     visible_prob: torch.Tensor,
     target: torch.Tensor,
-    threshold: float = 0.5,
-    min_pixels: int = 4,
+    threshold: float = _DEFAULT.threshold,
+    min_pixels: int = _DEFAULT.min_pixels,
+    distractors: torch.Tensor | None = None,
 ) -> dict[str, int]:
     """Counts for precision / recall / accuracy, to be summed over batches.
 
@@ -73,16 +106,18 @@ def mask_confusion(
         pixel_prob: (B, H, W) per-pixel goal probability.
         visible_prob: (B,) per-frame goal-visible probability.
         target: (B, H, W) bool goal masks.
+        distractors: (B, H, W) bool masks of the goal's same-category distractors, or None.
 
     Returns:
         pixel ``tp``, ``fp``, ``fn`` and frame ``frames``, ``frames_correct``,
-        ``frames_visible`` (ints).
+        ``frames_visible`` (ints); with ``distractors`` also ``fp_distractor``, the
+        predicted goal pixels that lie on a distractor.
     """
     pred = pixel_prob >= threshold  # (B, H, W)
     tgt = target.bool()
     visible = visible_targets(tgt, min_pixels).bool()  # (B,)
     frame_pred = visible_prob >= threshold  # (B,)
-    return {
+    counts = {
         "tp": int((pred & tgt).sum()),
         "fp": int((pred & ~tgt).sum()),
         "fn": int((~pred & tgt).sum()),
@@ -90,22 +125,32 @@ def mask_confusion(
         "frames_correct": int((frame_pred == visible).sum()),
         "frames_visible": int(visible.sum()),
     }
+    if distractors is not None:
+        if distractors.shape != tgt.shape:
+            raise ValueError(
+                f"distractors {tuple(distractors.shape)} and target {tuple(tgt.shape)} differ"
+            )
+        counts["fp_distractor"] = int((pred & distractors.bool() & ~tgt).sum())
+    return counts
 
 
 def confusion_metrics(counts: Mapping[str, int]) -> dict[str, float]:
     """Pixel precision, recall, IoU and frame "goal visible" accuracy from summed counts.
 
-    A ratio with an empty denominator is reported as NaN, not 0 or 1.
+    ``on_distractor`` is the share of predicted goal pixels that lie on a distractor (NaN
+    without ``fp_distractor`` counts). A ratio with an empty denominator is NaN, not 0 or 1.
     """
 
     def ratio(num: float, den: float) -> float:
         return float(num) / float(den) if den > 0 else float("nan")
 
     tp, fp, fn = counts["tp"], counts["fp"], counts["fn"]
+    on_distractor = counts.get("fp_distractor")
     return {
         "pixel_precision": ratio(tp, tp + fp),
         "pixel_recall": ratio(tp, tp + fn),
         "pixel_iou": ratio(tp, tp + fp + fn),
         "visible_accuracy": ratio(counts["frames_correct"], counts["frames"]),
         "visible_rate": ratio(counts["frames_visible"], counts["frames"]),
+        "on_distractor": ratio(on_distractor, tp + fp) if on_distractor is not None else math.nan,
     }
