@@ -49,7 +49,7 @@ from vla_gr.training.ema import EMA
 from vla_gr.training.logger import MetricsLogger, Progress
 from vla_gr.training.optim import CPUOffloadAdamW, build_optimizer, build_scheduler
 from vla_gr.training.state import Run, TrainState, check_resume_config, restore, save
-from vla_gr.training.step import autocast, train_step, validation_loss
+from vla_gr.training.step import autocast, train_step, validate
 
 log = logging.getLogger("vla_gr.train")
 
@@ -155,19 +155,22 @@ def maybe_log(run: Run, state: TrainState, samples_per_s: float) -> None:
 
 
 def maybe_validate(run: Run, state: TrainState) -> bool:
-    """Every ``training.val_every`` steps, with the EMA weights: held-out loss and closed-loop
-    metrics; updates the best score and returns whether this step set a new best."""
+    """Every ``training.val_every`` steps, with the EMA weights: held-out loss (and the goal
+    head's ``val/goal_*`` metrics on the same windows) and closed-loop metrics; updates the
+    best score and returns whether this step set a new best."""
     t, model, device = run.cfg.training, run.model, run.dist.device
     validates = run.val_loader is not None or t.eval_episodes > 0
     if not (validates and t.val_every and _due(state.step, t.val_every, t.steps)):
         return False
+    held_out: dict[str, float] = {}
     with run.ema.average_parameters(model) if run.ema else contextlib.nullcontext():
         if run.val_loader is not None:
-            state.val_loss = validation_loss(
+            state.val_loss, held_out = validate(
                 model, run.val_loader, t.val_batches, device, t.amp, run.cfg.seed
             )
             state.best_val_loss = min(state.best_val_loss, state.val_loss)
-        state.evals = closed_loop_metrics(model, run.cfg, run.dist, lambda: autocast(device, t.amp))
+        closed = closed_loop_metrics(model, run.cfg, run.dist, lambda: autocast(device, t.amp))
+        state.evals = held_out | closed
     score = best_score(t.best_metric, state.val_loss, state.evals)
     is_best = score > state.score
     state.score = max(state.score, score)

@@ -4,7 +4,11 @@ Nests one config per component; each lives beside its component in ``vla_gr.core
 (``model.encoders``: :mod:`vla_gr.core.encoders.config`, ``model.head``:
 :mod:`vla_gr.core.diffusion_policy.config`, ``model.gr_field``:
 :mod:`vla_gr.core.gr_field.config`, ``model.dual_system``:
-:mod:`vla_gr.core.dual_system.config`), so the defaults are written once.
+:mod:`vla_gr.core.dual_system.config`, ``model.goal_head`` and ``model.grounding``:
+:mod:`vla_gr.core.grounding`), so the defaults are written once.
+
+``model.agent`` picks what ``VLAGRPolicy`` builds: ``end_to_end`` (encoders -> fusion ->
+action head) or ``dual_system`` (S2: the goal head and the GR field; S1: the controller).
 """
 
 from __future__ import annotations
@@ -15,10 +19,16 @@ from vla_gr.core.diffusion_policy.config import HeadConfig
 from vla_gr.core.dual_system.config import DualSystemConfig
 from vla_gr.core.encoders.config import EncodersConfig
 from vla_gr.core.gr_field.config import GRFieldConfig
+from vla_gr.core.grounding import GoalHeadConfig, GroundingConfig
 from vla_gr.validation import check_choice, check_positive
 
 PEFT_METHODS = ("lora", "oft", "adapter")
-FREEZABLE = ("vision", "text", "pose", "fusion", "head")
+AGENTS = ("end_to_end", "dual_system")
+#: Submodules ``model.freeze`` may name, per ``model.agent``.
+FREEZABLE = {
+    "end_to_end": ("vision", "text", "pose", "fusion", "head"),
+    "dual_system": ("goal_head",),
+}
 #: Component fields that follow a model key (``(component, field) -> key``).
 FOLLOWS = {
     ("head", "action_dim"): "action_dim",
@@ -72,10 +82,13 @@ class ModelConfig:
     n_action_steps: int = 8
     action_dim: int = 3  # the world's action: (linear, angular, stop)
     image_size: int = 64
+    agent: str = "end_to_end"  # end_to_end | dual_system (S2 goal head + GR field, S1)
     encoders: EncodersConfig = field(default_factory=EncodersConfig)
     head: HeadConfig = field(default_factory=HeadConfig)
     gr_field: GRFieldConfig = field(default_factory=GRFieldConfig)
     dual_system: DualSystemConfig = field(default_factory=DualSystemConfig)
+    goal_head: GoalHeadConfig = field(default_factory=GoalHeadConfig)  # S2's grounding
+    grounding: GroundingConfig = field(default_factory=GroundingConfig)  # its loss, metrics
     freeze: list[str] = field(default_factory=list)  # submodules whose weights stay fixed
     peft: PeftConfig = field(default_factory=PeftConfig)
 
@@ -89,8 +102,15 @@ class ModelConfig:
             )
         if not 16 <= self.image_size <= 512:
             raise ValueError(f"model.image_size={self.image_size} must be in [16, 512]")
+        check_choice("model.agent", self.agent, AGENTS)
         for name in self.freeze:
-            check_choice("model.freeze[]", name, FREEZABLE)
+            check_choice(f"model.freeze[] (model.agent={self.agent})", name, FREEZABLE[self.agent])
+        stride = 2 ** len(self.goal_head.channels)
+        if self.agent == "dual_system" and self.image_size % stride:
+            raise ValueError(
+                f"model.image_size={self.image_size} must be divisible by {stride} for the goal "
+                f"head's {len(self.goal_head.channels)} stages (model.goal_head.channels)"
+            )
         for (component, attr), key in FOLLOWS.items():
             setattr(self, component, _follow(self, component, attr, key))
 

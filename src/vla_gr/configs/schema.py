@@ -13,7 +13,11 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import OmegaConf
 
 from vla_gr.configs.model_schema import FOLLOWS, ModelConfig
-from vla_gr.configs.training_schema import LoggingConfig, TrainingConfig
+from vla_gr.configs.training_schema import (
+    LoggingConfig,
+    TrainingConfig,
+    check_training_for_agent,
+)
 from vla_gr.geometry.robot_spec import MAX_DEPTH
 from vla_gr.validation import check_choice, check_positive
 
@@ -121,19 +125,23 @@ class VLAGRConfig:
     training: TrainingConfig = field(default_factory=TrainingConfig)
     logging: LoggingConfig = field(default_factory=LoggingConfig)
 
+    def __post_init__(self) -> None:
+        check_training_for_agent(self.training, self.model.agent)
+
 
 def register_configs() -> None:
     """Register the schema under the name ``base_config`` (idempotent).
 
     The agent's view of the sensor follows the world's unless a recipe sets it
-    (``model.image_size``, ``model.encoders.max_depth`` and ``model.gr_field.max_depth``
-    follow ``env.*``), and the component fields in
+    (``model.image_size``, ``model.encoders.max_depth``, ``model.gr_field.max_depth`` and
+    ``model.goal_head.max_depth`` follow ``env.*``), and the component fields in
     :data:`~vla_gr.configs.model_schema.FOLLOWS` follow their model key.
     """
     node = OmegaConf.structured(VLAGRConfig)
     node.model.image_size = "${env.image_size}"
     node.model.encoders.max_depth = "${env.max_depth}"
     node.model.gr_field.max_depth = "${env.max_depth}"
+    node.model.goal_head.max_depth = "${env.max_depth}"
     for (component, attr), key in FOLLOWS.items():
         node.model[component][attr] = "${model." + key + "}"
     ConfigStore.instance().store(name="base_config", node=node)

@@ -13,7 +13,9 @@ IF_MISSING = ("error", "collect", "synthetic")
 ON_CORRUPT = ("error", "skip")
 DDP_BACKENDS = ("auto", "nccl", "gloo")
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
-BEST_METRICS = ("val_loss", "success", "spl")
+BEST_METRICS = ("val_loss", "success", "spl", "goal_iou")
+#: ``best_metric`` values measured by closed-loop episodes (the rest on held-out windows).
+CLOSED_LOOP_METRICS = ("success", "spl")
 
 
 @dataclass
@@ -52,7 +54,9 @@ class TrainingConfig:
     val_batches: int = 8  # batches per validation (per process)
     eval_episodes: int = 0  # closed-loop `val` episodes (0..N-1) at each validation; 0 = off
     eval_max_steps: int = 300  # step budget of each closed-loop episode during training
-    best_metric: str = "val_loss"  # what picks `best`: val_loss (lowest) | success | spl (highest)
+    # What picks `best`: val_loss (lowest) | success | spl (closed loop, highest) | goal_iou
+    # (the goal head's held-out pixel IoU, highest; model.agent=dual_system).
+    best_metric: str = "val_loss"
     checkpoint_every: int = 200  # optimiser steps between `latest` checkpoints (0 = end only)
     keep_checkpoints: int = 2  # step folders kept besides the one `best` points to
     resume: str | None = None  # <run>/checkpoints/latest
@@ -87,10 +91,15 @@ class TrainingConfig:
         check_positive("training.eval_episodes", self.eval_episodes, allow_zero=True)
         check_positive("training.eval_max_steps", self.eval_max_steps)
         check_choice("training.best_metric", self.best_metric, BEST_METRICS)
-        if self.best_metric != "val_loss" and self.eval_episodes == 0:
+        if self.best_metric in CLOSED_LOOP_METRICS and self.eval_episodes == 0:
             raise ValueError(
                 f"training.best_metric={self.best_metric!r} needs closed-loop evaluation: set "
                 "training.eval_episodes > 0 or use training.best_metric=val_loss"
+            )
+        if self.best_metric == "goal_iou" and (self.val_ratio == 0 or self.val_every == 0):
+            raise ValueError(
+                "training.best_metric='goal_iou' is measured on held-out windows: set "
+                "training.val_ratio > 0 and training.val_every > 0"
             )
         if self.eval_episodes > 0 and self.val_every == 0:
             raise ValueError(
@@ -128,3 +137,18 @@ class LoggingConfig:
 
     def __post_init__(self) -> None:
         check_choice("logging.level", self.level, LOG_LEVELS)
+
+
+def check_training_for_agent(training: TrainingConfig, agent: str) -> None:
+    """Cross-checks of ``training.*`` against ``model.agent``; raises ``ValueError``."""
+    if agent == "dual_system" and training.eval_episodes > 0:
+        raise ValueError(
+            f"training.eval_episodes={training.eval_episodes}: closed-loop episodes need the "
+            "dual system's S2 inference, which model.agent=dual_system does not have yet; "
+            "set training.eval_episodes=0"
+        )
+    if training.best_metric == "goal_iou" and agent != "dual_system":
+        raise ValueError(
+            f"training.best_metric='goal_iou' needs the goal head of model.agent=dual_system "
+            f"(model.agent={agent!r})"
+        )

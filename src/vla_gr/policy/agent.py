@@ -1,4 +1,4 @@
-"""``VLAGRPolicy``: the navigation agent (observation encoders -> context tokens -> action head).
+"""``VLAGRPolicy``: the navigation agent, end to end or as a dual system (``model.agent``).
 
 LeRobot-shaped interface (see DESIGN.md "Policy interface"):
 
@@ -15,14 +15,18 @@ statistics, kept as buffers so that they travel with the weights.
 
 Context tokens (width D): one instruction token, T pose tokens and T*K image tokens, each
 with a type and an observation-step embedding, mixed by ``fusion_layers`` transformer
-blocks, then decoded by the action head (``model.head``). The GR field and the dual system
-(``model.gr_field``, ``model.dual_system``) are not composed into the agent yet.
+blocks, then decoded by the action head (``model.head``); that is ``model.agent=end_to_end``.
+
+``model.agent=dual_system`` builds S2's language-grounded goal head (``model.goal_head``,
+:mod:`vla_gr.core.grounding`) and trains it on the last observation frame of each window
+against ``goal_mask`` (the instructed instance only; distractors are negatives). Its
+inference (S2 on the GR field, S1) is ``_dual_system_step``.
 """
 
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 
 import numpy as np
 import torch
@@ -33,9 +37,11 @@ from vla_gr.checkpoint import load_model_state, read_checkpoint
 from vla_gr.configs.model_schema import ModelConfig
 from vla_gr.core.diffusion_policy import DiffusionPolicy
 from vla_gr.core.encoders import PoseEncoder, RGBDEncoder, build_text_encoder, pose_features
+from vla_gr.core.grounding import GoalHead, goal_head_loss, mask_confusion
 from vla_gr.core.trajectory_attention import TransformerBlock
+from vla_gr.policy.frames import apply_peft, as_instructions, env_obs_to_frame
 
-__all__ = ["VLAGRPolicy", "apply_peft", "make_fake_batch", "env_obs_to_frame"]
+__all__ = ["VLAGRPolicy"]
 
 _OBS_KEYS = ("rgb", "depth", "pose")
 
@@ -48,6 +54,21 @@ class VLAGRPolicy(nn.Module):
     def __init__(self, config: ModelConfig) -> None:
         super().__init__()
         self.config = c = config
+        if c.agent == "dual_system":
+            self.goal_head = GoalHead(c.goal_head)  # S2's grounding; S1 is not built yet
+        else:
+            self._build_end_to_end(c)
+        # Min-max normalisers (identity until set_normalization); saved with the weights.
+        self.register_buffer("action_scale", torch.ones(c.action_dim))
+        self.register_buffer("action_offset", torch.zeros(c.action_dim))
+        self.register_buffer("pose_scale", torch.ones(3))
+        self.register_buffer("pose_offset", torch.zeros(3))
+        for name in c.freeze:
+            getattr(self, name).requires_grad_(False)
+        self.reset()
+
+    def _build_end_to_end(self, c: ModelConfig) -> None:
+        """Encoders -> fusion transformer -> action head."""
         e = c.encoders
         self.vision = RGBDEncoder(
             channels=e.vision_channels,
@@ -67,14 +88,10 @@ class VLAGRPolicy(nn.Module):
         )
         self.fusion_norm = nn.LayerNorm(e.dim)
         self.head = DiffusionPolicy(config=c.head)
-        # Min-max normalisers (identity until set_normalization); saved with the weights.
-        self.register_buffer("action_scale", torch.ones(c.action_dim))
-        self.register_buffer("action_offset", torch.zeros(c.action_dim))
-        self.register_buffer("pose_scale", torch.ones(3))
-        self.register_buffer("pose_offset", torch.zeros(3))
-        for name in c.freeze:
-            getattr(self, name).requires_grad_(False)
-        self.reset()
+
+    @property
+    def has_goal_head(self) -> bool:
+        return self.config.agent == "dual_system"
 
     @classmethod
     def from_pretrained(cls, path, device: torch.device | str = "cpu") -> VLAGRPolicy:
@@ -156,10 +173,14 @@ class VLAGRPolicy(nn.Module):
 
     # ------------------------------------------------------------------ training
     def forward(self, batch: Mapping) -> dict[str, torch.Tensor]:
-        """Training loss on a batch with ``action`` (B, horizon, A) raw.
+        """Training loss: the action head's on ``action`` (B, horizon, A) raw (end to end), or
+        the goal head's on the last observation frame's ``goal_mask`` (dual system).
 
-        Returns ``{"loss": scalar, ...}`` (further scalars from the head, for logging).
+        Returns ``{"loss": scalar, ...}`` (further detached scalars, for logging).
         """
+        if self.has_goal_head:
+            losses = self.goal_loss(self.goal_outputs(batch))
+            return {k: v if k == "loss" else v.detach() for k, v in losses.items()}
         action = batch["action"]  # (B, H, A)
         if action.shape[1:] != (self.config.horizon, self.config.action_dim):
             raise ValueError(
@@ -174,10 +195,66 @@ class VLAGRPolicy(nn.Module):
                 result[key] = value.detach()
         return result
 
+    # ------------------------------------------------------------------ goal head (S2)
+    def goal_outputs(self, batch: Mapping) -> dict:
+        """The goal head on the last observation frame of each window of ``batch``.
+
+        Returns ``pixel_logits`` (B, H, W), ``visible_logits`` (B,), the ``target`` goal mask
+        (B, H, W) bool and, when the batch has them, ``distractors`` (B, H, W) bool.
+        """
+        if not self.has_goal_head:
+            raise RuntimeError("this agent has no goal head (model.agent=end_to_end)")
+        rgb, depth = batch["rgb"], batch["depth"]  # (B, T, 3, H, W), (B, T, 1, H, W)
+        if rgb.dim() != 5 or depth.dim() != 5:
+            raise ValueError(
+                f"batch['rgb'] / ['depth'] must be (B, T, C, H, W); got {tuple(rgb.shape)} / "
+                f"{tuple(depth.shape)}"
+            )
+        if "goal_mask" not in batch:
+            raise ValueError("training the goal head needs batch['goal_mask'] (B, T, 1, H, W)")
+        instructions = as_instructions(batch["instruction"], "batch['instruction']")
+        out = dict(self.goal_head(rgb[:, -1], depth[:, -1], instructions))
+        out["target"] = batch["goal_mask"][:, -1, 0].bool()  # (B, H, W)
+        if "distractor_mask" in batch:
+            out["distractors"] = batch["distractor_mask"][:, -1, 0].bool()  # (B, H, W)
+        return out
+
+    def goal_loss(self, outputs: Mapping) -> dict[str, torch.Tensor]:
+        """``goal_head_loss`` of :meth:`goal_outputs` with ``model.grounding``'s weights."""
+        g = self.config.grounding
+        return goal_head_loss(
+            outputs["pixel_logits"].float(),
+            outputs["visible_logits"].float(),
+            outputs["target"],
+            min_pixels=g.min_pixels,
+            pos_weight=g.pos_weight,
+            dice_weight=g.dice_weight,
+            visible_weight=g.visible_weight,
+        )
+
+    def goal_confusion(self, outputs: Mapping) -> dict[str, int]:
+        """``mask_confusion`` counts of :meth:`goal_outputs` (``model.grounding`` thresholds)."""
+        g = self.config.grounding
+        return mask_confusion(
+            torch.sigmoid(outputs["pixel_logits"].float()),
+            torch.sigmoid(outputs["visible_logits"].float()),
+            outputs["target"],
+            threshold=g.threshold,
+            min_pixels=g.min_pixels,
+            distractors=outputs.get("distractors"),
+        )
+
     # ------------------------------------------------------------------ inference
+    def _dual_system_step(self, obs: Mapping) -> torch.Tensor:
+        """One control step of the dual system: S2 (goal head -> GR field -> plan) every
+        ``plan_every`` steps, S1 every step -> action (B, A)."""
+        raise RuntimeError("dual_system inference needs the S2 navigator")
+
     @torch.no_grad()
     def predict_action_chunk(self, obs: Mapping) -> torch.Tensor:
         """Raw actions ``(B, horizon, A)`` in ``[-1, 1]`` for a batch of observation histories."""
+        if self.has_goal_head:
+            return self._dual_system_step(obs)
         context = self.encode_observations(obs)  # (B, S, D)
         chunk = self.head.get_action(context)  # (B, H, A), sampler and steps from model.head
         return self.unnormalize_action(chunk).clamp(-1.0, 1.0)  # (B, H, A)
@@ -206,6 +283,8 @@ class VLAGRPolicy(nn.Module):
         ``t = 0, n_action_steps, 2 * n_action_steps, ...``; only its first
         ``n_action_steps`` actions are executed, the rest is discarded.
         """
+        if self.has_goal_head:
+            return self._dual_system_step(obs)
         frame = env_obs_to_frame(obs, device=self.action_scale.device)
         if not self._obs_queue:
             self._obs_queue.extend([frame] * self.config.n_obs_steps)
@@ -219,99 +298,3 @@ class VLAGRPolicy(nn.Module):
             chunk = self.predict_action_chunk(history)  # (B, H, A)
             self._action_queue.extend(chunk[:, : self.config.n_action_steps].unbind(1))
         return self._action_queue.popleft()  # (B, A)
-
-
-def apply_peft(model: nn.Module, peft) -> nn.Module:
-    """Apply ``model.peft`` (a :class:`PeftConfig`) in place when enabled; returns ``model``."""
-    if not peft.enabled:
-        return model
-    from vla_gr.core import peft_modules
-
-    targets = list(peft.target_modules)
-    if peft.method == "lora":
-        peft_modules.apply_lora_to_model(
-            model, targets, peft.lora_rank, peft.lora_alpha, peft.lora_dropout
-        )
-    elif peft.method == "oft":
-        peft_modules.apply_oft_to_model(model, targets, peft.oft_rank)
-    else:
-        peft_modules.apply_adapter_to_model(model, targets, peft.adapter_bottleneck)
-    return model
-
-
-def as_instructions(value, name: str = "instruction") -> list[str]:
-    """``value`` (one string, or a sequence / array of strings) as a list of strings.
-
-    Raises ``TypeError`` naming ``name`` for anything else (None, bytes, non-string items),
-    which would otherwise be turned into text such as ``"None"`` or fail deep inside.
-    """
-    if isinstance(value, str):
-        return [value]
-    if (
-        value is None
-        or isinstance(value, (bytes, bytearray, Mapping))
-        or not isinstance(value, (Sequence, np.ndarray))
-    ):
-        raise TypeError(f"{name} must be a string or a list of strings, got {type(value).__name__}")
-    bad = [s for s in value if not isinstance(s, str)]
-    if bad:
-        raise TypeError(
-            f"{name} must be a string or a list of strings; it holds a "
-            f"{type(bad[0]).__name__}: {bad[0]!r}"
-        )
-    return [str(s) for s in value]
-
-
-def env_obs_to_frame(obs: Mapping, device: torch.device | str = "cpu") -> dict:
-    """Environment observation (single or batched) -> one policy frame.
-
-    Returns ``rgb`` (B, 3, H, W) float in [0, 1], ``depth`` (B, 1, H, W), ``pose`` (B, 3),
-    ``instruction`` list of B strings.
-    """
-    rgb = torch.as_tensor(np.asarray(obs["rgb"]))
-    batched = rgb.dim() == 4
-    if not batched:
-        if rgb.dim() != 3:
-            raise ValueError(
-                f"obs['rgb'] must be (H, W, 3) or (B, H, W, 3); got {tuple(rgb.shape)}"
-            )
-        rgb = rgb[None]  # (1, H, W, 3)
-    depth = torch.as_tensor(np.asarray(obs["depth"]), dtype=torch.float32)
-    pose = torch.as_tensor(np.asarray(obs["pose"]), dtype=torch.float32)
-    if not batched:
-        depth, pose = depth[None], pose[None]  # (1, H, W, 1), (1, 3)
-    instructions = as_instructions(obs["instruction"], "obs['instruction']")
-    if len(instructions) != rgb.shape[0]:
-        raise ValueError(f"{rgb.shape[0]} observations but {len(instructions)} instructions")
-    rgb = (
-        rgb.permute(0, 3, 1, 2).float() / 255.0
-        if rgb.dtype == torch.uint8
-        else rgb.permute(0, 3, 1, 2).float()
-    )
-    return {
-        "rgb": rgb.to(device),  # (B, 3, H, W)
-        "depth": depth.permute(0, 3, 1, 2).to(device),  # (B, 1, H, W)
-        "pose": pose.to(device),  # (B, 3)
-        "instruction": instructions,
-    }
-
-
-def make_fake_batch(
-    config: ModelConfig,
-    batch_size: int = 2,
-    seed: int = 0,
-    instructions: Sequence[str] | None = None,
-) -> dict:
-    """A random training batch in dataset layout (openpi's ``fake_obs`` + ``fake_act``)."""
-    g = torch.Generator().manual_seed(seed)
-    B, T, S = batch_size, config.n_obs_steps, config.image_size
-    words = ["chair", "bed", "sofa", "table", "sink", "plant"]
-    return {
-        "rgb": torch.rand(B, T, 3, S, S, generator=g),  # (B, T, 3, S, S)
-        "depth": torch.rand(B, T, 1, S, S, generator=g) * 5.0,  # (B, T, 1, S, S)
-        "pose": torch.randn(B, T, 3, generator=g),  # (B, T, 3)
-        "action": torch.rand(B, config.horizon, config.action_dim, generator=g) * 2 - 1,
-        "instruction": list(instructions)
-        if instructions is not None
-        else [f"find the {words[i % len(words)]}" for i in range(B)],
-    }
