@@ -61,6 +61,7 @@ def test_deleted_chunk_is_refused_naming_store_array_and_episodes(tmp_path):
         "data/pose",
         "data/action",
         "data/goal_mask",
+        "data/distractor_mask",
         "meta/instruction",
         "meta/spec",
         "meta/metrics",

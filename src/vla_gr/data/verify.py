@@ -37,7 +37,7 @@ def health_lines(
         bad = sum(d.array == name for d in damage)
         shape = f"{tuple(arr.shape)} {arr.dtype}"
         lines.append(
-            f"  {name:<18} {shape:<28} {arr.nchunks:>6} chunks  {f'{bad} BAD' if bad else 'ok'}"
+            f"  {name:<20} {shape:<28} {arr.nchunks:>6} chunks  {f'{bad} BAD' if bad else 'ok'}"
         )
     checks = "present, checksums" + (", decoded, values in range" if deep else ", actions/poses")
     if not damage:
