@@ -279,3 +279,11 @@ def test_store_without_distractor_mask_opens_and_names_the_key_on_read(tmp_path)
         store.data_array("distractor_mask")
     items = EpisodeWindowDataset(store, n_obs_steps=2, horizon=4, split="all")
     assert "distractor_mask" not in items[0] and "goal_mask" in items[0]
+
+
+def test_collect_refuses_to_append_to_a_store_without_distractor_mask(tmp_path):
+    from vla_gr.data.collect import open_output_store
+
+    old = _legacy(tmp_path / "old.zarr")
+    with pytest.raises(StoreError, match="before stores recorded distractor_mask"):
+        open_output_store(old, "append", 8, {})

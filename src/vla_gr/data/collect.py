@@ -165,6 +165,11 @@ def open_output_store(path: Path, mode: str, image_size: int, info: dict) -> Epi
             )
         if mode == "append":
             store = EpisodeStore.open(path, mode="a")
+            if "distractor_mask" not in store.frame_keys:
+                raise StoreError(
+                    f"cannot append to {path}: it was written before stores recorded "
+                    "distractor_mask; collect into a new store (collect.mode=overwrite)"
+                )
             for key in ("split", "image_size", "control_hz"):
                 if key in store.info and store.info[key] != info[key]:
                     raise StoreError(
