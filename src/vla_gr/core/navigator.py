@@ -1,0 +1,304 @@
+"""S2 navigation behaviour on the GR field: look around, explore, approach, verify, recover, stop.
+
+A batch-1 state machine that owns a :class:`~vla_gr.core.gr_field.GRField`. Each planner tick
+takes depth, pose and a per-pixel goal likelihood (from whatever grounds the instruction; it
+never sees privileged state) and returns a :class:`NavPlan`: waypoints in the robot frame or an
+open-loop command, the mode, a goal confidence and a STOP request.
+
+Modes and transitions (checked in this order every tick)::
+
+    look_around  turn in place until look_around_angle is covered (or a goal is confirmed)
+    recover      stuck: a virtual obstacle ahead, back up, turn; then re-plan
+    stop         a confirmed goal cell within stop_distance, in line of sight, seen now
+    verify       a confirmed goal within stop_distance but not in view: turn towards it
+    approach     a confirmed goal: follow the field's geodesic to it
+    explore      no confirmed goal: follow the field's geodesic to the frontier
+
+Multi-frame confirmation: a map cell becomes a goal for the field only after goal pixels
+landed in it on ``confirm_ticks`` different ticks, so a single false positive never attracts.
+Stuck detection: in explore/approach, the robot moved less than ``stuck_distance`` over the
+last ``stuck_ticks`` ticks (SemExp/Stubborn), or the path stays blocked by depth; recovery
+marks a virtual obstacle in front (the path then bends around it), backs up and turns.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from scipy import ndimage
+
+from vla_gr.core.field_map import OCC_HITS, points_to_cells
+from vla_gr.core.gr_field import GRField, GRFieldConfig
+from vla_gr.geometry.camera import project_depth
+
+logger = logging.getLogger(__name__)
+
+MODES = ("look_around", "explore", "approach", "verify", "recover", "stop")
+
+
+@dataclass
+class NavigatorConfig:
+    """Thresholds of the S2 behaviour (metres, radians, ticks) and the GR field it owns."""
+
+    field: GRFieldConfig = field(default_factory=GRFieldConfig)
+    look_around_angle: float = 2.0 * math.pi  # turned in place at the start
+    turn_rate: float = 1.0  # fraction of the max angular speed for open-loop turns
+    pixel_threshold: float = 0.5  # goal likelihood for a pixel to vote for its cell
+    confirm_ticks: int = 2  # ticks with goal votes before a cell is a goal
+    min_goal_pixels: int = 3  # goal pixels for "the goal is in view now"
+    stop_distance: float = 0.8  # m from the robot centre to a confirmed goal cell
+    goal_halo_cells: int = 2  # occupied cells this close to goal cells do not block the view
+    verify_ticks: int = 12  # ticks of turning towards the goal before stopping anyway
+    stuck_ticks: int = 40  # window of the no-progress test (ticks)
+    stuck_distance: float = 0.2  # m moved within the window below which the robot is stuck
+    recover_back_ticks: int = 3  # ticks of backing up
+    recover_turn_ticks: int = 6  # ticks of turning after backing up
+    recover_back_speed: float = 0.4  # fraction of the max linear speed, backwards
+    virtual_obstacle_distance: float = 0.3  # m ahead of the robot centre
+    virtual_obstacle_radius: float = 0.08  # m
+    virtual_obstacle_hits: float = 100.0  # evidence count (outvotes later free evidence)
+    no_path_ticks: int = 8  # ticks without a path before a recovery turn
+
+    def __post_init__(self) -> None:
+        if isinstance(self.field, dict):
+            self.field = GRFieldConfig(**self.field)
+        for key in ("look_around_angle", "stop_distance", "stuck_distance",
+                    "virtual_obstacle_radius", "virtual_obstacle_hits"):  # fmt: skip
+            if not getattr(self, key) >= 0:
+                raise ValueError(f"navigator.{key}={getattr(self, key)} must be >= 0")
+        for key in ("confirm_ticks", "min_goal_pixels", "verify_ticks", "stuck_ticks",
+                    "no_path_ticks"):  # fmt: skip
+            if int(getattr(self, key)) < 1:
+                raise ValueError(f"navigator.{key}={getattr(self, key)} must be >= 1")
+        for key in ("recover_back_ticks", "recover_turn_ticks"):
+            if int(getattr(self, key)) < 0:
+                raise ValueError(f"navigator.{key}={getattr(self, key)} must be >= 0")
+        for key in ("turn_rate", "recover_back_speed", "pixel_threshold"):
+            if not 0.0 < getattr(self, key) <= 1.0:
+                raise ValueError(f"navigator.{key}={getattr(self, key)} must be in (0, 1]")
+
+
+@dataclass
+class NavPlan:
+    """One planner tick's output (batch 1)."""
+
+    waypoints: np.ndarray  # (K, 2) robot frame (forward, left) metres; (0, 2) when none
+    mode: str  # one of MODES
+    goal_confidence: float  # in [0, 1]: evidence for the committed (or best) goal cells
+    stop: bool  # STOP request
+    command: tuple[float, float] | None = None  # open-loop (v, w) fractions until the next tick
+    goal_distance: float = math.inf  # m from the robot to the nearest confirmed goal cell
+
+
+class Navigator:
+    """S2 behaviour on a batch-1 GR field (see module docstring)."""
+
+    def __init__(self, config: NavigatorConfig | None = None) -> None:
+        self.config = config or NavigatorConfig()
+        self.field = GRField(self.config.field)
+        self.reset()
+
+    def reset(self) -> None:
+        """Start a new episode: empty map, no evidence, look around first."""
+        shape = self.field.grid.shape
+        self.field.reset()
+        self.goal_votes = np.zeros(shape, np.int32)  # (H, W) ticks with goal pixels per cell
+        self.mode = "look_around"
+        self.ticks = 0
+        self.turned = 0.0
+        self.last_yaw: float | None = None
+        self.positions: deque[np.ndarray] = deque(maxlen=self.config.stuck_ticks + 1)
+        self.recover_left = 0
+        self.verify_count = 0
+        self.no_path_count = 0
+        self.recoveries = 0
+        self.committed = False
+        self.ever_seen_goal = False
+        self.last_output = None
+        self.last_latency = 0.0
+
+    # ------------------------------------------------------------------ tick
+
+    def plan(self, obs: dict, goal_likelihood) -> NavPlan:
+        """One planner tick.
+
+        Args:
+            obs: ``depth`` (H, W, 1) or (H, W) metres and ``pose`` (3,) (a leading batch of 1
+                is accepted too).
+            goal_likelihood: (H, W) per-pixel probability in [0, 1] that the pixel shows the
+                instructed object.
+        """
+        t0 = time.perf_counter()
+        cfg = self.config
+        depth = torch.as_tensor(np.asarray(obs["depth"], np.float32)).reshape(
+            1, *np.shape(goal_likelihood)[-2:]
+        )  # (1, H, W)
+        pose = torch.as_tensor(np.asarray(obs["pose"], np.float32)).reshape(1, 3)  # (1, 3)
+        like = torch.as_tensor(np.asarray(goal_likelihood, np.float32)).reshape(depth.shape)
+        visible = self._vote(depth, pose, like)  # goal pixels in view now
+        confirmed = self.goal_votes >= cfg.confirm_ticks  # (H, W)
+        gate = torch.from_numpy(confirmed)[None]  # (1, H, W)
+        out = self.field.update({"depth": depth, "pose": pose}, like, goal_gate=gate)
+        self.last_output = out
+        maps = self.field.last_maps
+        goal_cells = maps["goal"][0].numpy()  # (H, W) confirmed goal cells
+        self.committed = bool(goal_cells.any())
+        robot_xy = maps["robot_xy"][0].numpy()  # (2,) from the grid corner
+        distance, nearest = self._goal_distance(goal_cells, robot_xy)
+        votes = float(self.goal_votes.max()) if self.goal_votes.any() else 0.0
+        confidence = min(1.0, votes / cfg.confirm_ticks)
+        p = pose[0].numpy().astype(np.float64)  # (3,)
+        plan = self._decide(out, p, robot_xy, visible, distance, nearest, maps)
+        plan.goal_confidence, plan.goal_distance = confidence, distance
+        self.mode = plan.mode
+        self.ticks += 1
+        self.last_latency = time.perf_counter() - t0
+        return plan
+
+    def _decide(self, out, pose, robot_xy, visible, distance, nearest, maps) -> NavPlan:
+        """The state machine: mode, waypoints / command and STOP for this tick."""
+        cfg = self.config
+        yaw = float(pose[2])
+        if self.last_yaw is not None:
+            self.turned += abs(_wrap(yaw - self.last_yaw))
+        self.last_yaw = yaw
+
+        looking = self.mode == "look_around" and not self.committed
+        if looking and self.turned < cfg.look_around_angle:
+            return self._command_plan("look_around", (0.0, cfg.turn_rate))
+        if self.recover_left > 0:
+            self.recover_left -= 1
+            backing = self.recover_left >= cfg.recover_turn_ticks
+            command = (-cfg.recover_back_speed, 0.0) if backing else (0.0, cfg.turn_rate)
+            return self._command_plan("recover", command)
+
+        if self.committed and distance <= cfg.stop_distance:
+            if visible or self.verify_count >= cfg.verify_ticks:
+                return NavPlan(np.zeros((0, 2)), "stop", 0.0, True)
+            self.verify_count += 1
+            bearing = math.atan2(nearest[1] - robot_xy[1], nearest[0] - robot_xy[0])
+            turn = math.copysign(cfg.turn_rate, _wrap(bearing - yaw))
+            return self._command_plan("verify", (0.0, turn))
+        self.verify_count = 0
+
+        mode = "approach" if self.committed else "explore"
+        self.positions.append(pose[:2].copy())  # progress is judged while driving only
+        if self._stuck():
+            return self._start_recovery(pose)
+        if not bool(out.has_path[0]):
+            self.no_path_count += 1
+            if self.no_path_count >= cfg.no_path_ticks:
+                self.no_path_count = 0
+                return self._start_recovery(pose)
+            return self._command_plan(mode, (0.0, cfg.turn_rate))
+        self.no_path_count = 0
+        waypoints = out.waypoints[0].numpy().astype(np.float64)  # (K, 2)
+        return NavPlan(waypoints, mode, 0.0, False)
+
+    # ------------------------------------------------------------------ pieces
+
+    def _command_plan(self, mode: str, command: tuple[float, float]) -> NavPlan:
+        if mode in ("look_around", "recover", "verify"):
+            self.positions.clear()
+        return NavPlan(np.zeros((0, 2)), mode, 0.0, False, command=command)
+
+    def _vote(self, depth, pose, like) -> bool:
+        """Add one vote to every cell goal pixels land in this tick; True if the goal is in view.
+
+        Args:
+            depth: (1, H, W); pose: (1, 3); like: (1, H, W).
+        """
+        cfg, fcfg = self.config, self.config.field
+        hits = (like >= cfg.pixel_threshold).reshape(1, -1)  # (1, N)
+        if not bool(hits.any()):
+            return False
+        points, valid = project_depth(
+            depth, fcfg.hfov_deg, pose, fcfg.camera_height, fcfg.camera_forward_offset,
+            fcfg.min_depth, fcfg.max_depth,
+        )  # (1, N, 3), (1, N)  # fmt: skip
+        keep = hits & valid  # (1, N)
+        cells, inside = points_to_cells(points[..., :2], self.field.grid)  # (1, N, 2), (1, N)
+        keep = keep & inside
+        visible = int(keep.sum()) >= cfg.min_goal_pixels
+        if bool(keep.any()):
+            rc = np.unique(cells[keep].numpy(), axis=0)  # (M, 2) distinct cells this tick
+            self.goal_votes[rc[:, 0], rc[:, 1]] += 1
+            self.ever_seen_goal = True
+        return visible
+
+    def _goal_distance(self, goal_cells: np.ndarray, robot_xy: np.ndarray):
+        """Distance (m) to the nearest goal cell centre in line of sight, and that centre (2,)."""
+        if not goal_cells.any():
+            return math.inf, None
+        h = self.field.config.cell_size
+        rows, cols = np.nonzero(goal_cells)
+        centres = (np.stack([cols, rows], axis=-1) + 0.5) * h  # (M, 2) x, y from the corner
+        dist = np.linalg.norm(centres - robot_xy, axis=-1)  # (M,)
+        near_goal = ndimage.binary_dilation(goal_cells, iterations=self.config.goal_halo_cells)
+        occupied = self.field.last_maps["occupied"][0].numpy() & ~near_goal  # (H, W)
+        for k in np.argsort(dist)[:8]:
+            if self._line_of_sight(robot_xy, centres[k], occupied):
+                return float(dist[k]), centres[k]
+        k = int(np.argmin(dist))
+        return math.inf, centres[k]
+
+    def _line_of_sight(self, a: np.ndarray, b: np.ndarray, occupied: np.ndarray) -> bool:
+        """No occupied (non-goal) cell on the segment a -> b (metric, from the grid corner)."""
+        h = self.field.config.cell_size
+        n = max(2, int(np.ceil(np.linalg.norm(b - a) / (0.5 * h))) + 1)
+        t = np.linspace(0.0, 1.0, n)[:, None]  # (n, 1)
+        rc = np.floor((a[None] * (1 - t) + b[None] * t)[:, ::-1] / h).astype(int)  # (n, 2)
+        return not occupied[rc[:, 0], rc[:, 1]].any()
+
+    def _stuck(self) -> bool:
+        """Moved less than stuck_distance over the last stuck_ticks ticks (window full)."""
+        cfg = self.config
+        if len(self.positions) <= cfg.stuck_ticks:
+            return False
+        pts = np.stack(self.positions)  # (T, 2)
+        spread = np.linalg.norm(pts - pts[-1], axis=-1).max()
+        return bool(spread < cfg.stuck_distance)
+
+    def _start_recovery(self, pose: np.ndarray) -> NavPlan:
+        """Mark a virtual obstacle ahead, then back up and turn (Stubborn's untrap)."""
+        cfg = self.config
+        self.recoveries += 1
+        self.positions.clear()
+        heading = np.array([math.cos(pose[2]), math.sin(pose[2])])
+        centre = pose[:2] + cfg.virtual_obstacle_distance * heading  # (2,) map frame
+        self.mark_obstacle(centre, cfg.virtual_obstacle_radius)
+        self.recover_left = cfg.recover_back_ticks + cfg.recover_turn_ticks
+        logger.debug("navigator: stuck at %s, recovery %d", pose, self.recoveries)
+        if self.recover_left == 0:
+            return self._command_plan("recover", (0.0, 0.0))
+        self.recover_left -= 1
+        backing = self.recover_left >= cfg.recover_turn_ticks
+        command = (-cfg.recover_back_speed, 0.0) if backing else (0.0, cfg.turn_rate)
+        return self._command_plan("recover", command)
+
+    def mark_obstacle(self, xy: np.ndarray, radius: float) -> None:
+        """Add obstacle evidence to the cells within ``radius`` of map-frame point ``xy`` (2,)."""
+        grid, h = self.field.grid, self.field.grid.cell_size
+        k = int(math.ceil(radius / h))
+        offs = np.arange(-k, k + 1) * h
+        dx, dy = np.meshgrid(offs, offs)
+        disk = dx**2 + dy**2 <= radius**2
+        pts = torch.tensor(np.stack([dx[disk], dy[disk]], -1) + xy, dtype=torch.float32)
+        cells, inside = points_to_cells(pts, grid)  # (D, 2), (D,)
+        cells = cells[inside]
+        if self.field.map_state.shape[0] == 0 or len(cells) == 0:
+            return
+        self.field.map_state[0, OCC_HITS, cells[:, 0], cells[:, 1]] += (
+            self.config.virtual_obstacle_hits
+        )
+
+
+def _wrap(angle: float) -> float:
+    """Wrap radians to (-pi, pi]."""
+    return math.pi - (math.pi - angle) % (2.0 * math.pi)
