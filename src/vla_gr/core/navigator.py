@@ -17,7 +17,7 @@ Modes and transitions (checked in this order every tick)::
 Multi-frame confirmation: a map cell becomes a goal for the field only after goal pixels
 landed in it on ``confirm_ticks`` different ticks, so a single false positive never attracts.
 Stuck detection: in explore/approach, the robot moved less than ``stuck_distance`` over the
-last ``stuck_ticks`` ticks (SemExp/Stubborn), or the path stays blocked by depth; recovery
+last ``stuck_steps`` control steps (SemExp/Stubborn) or has had no path for a while; recovery
 marks a virtual obstacle in front (the path then bends around it), backs up and turns.
 """
 
@@ -54,16 +54,17 @@ class NavigatorConfig:
     min_goal_pixels: int = 3  # goal pixels for "the goal is in view now"
     stop_distance: float = 0.8  # m from the robot centre to a confirmed goal cell
     goal_halo_cells: int = 2  # occupied cells this close to goal cells do not block the view
-    verify_ticks: int = 12  # ticks of turning towards the goal before stopping anyway
-    stuck_ticks: int = 40  # window of the no-progress test (ticks)
+    plan_every: int = 1  # control steps per tick: the *_steps durations below become ticks
+    verify_steps: int = 12  # turning towards the goal before stopping anyway
+    stuck_steps: int = 40  # window of the no-progress test
     stuck_distance: float = 0.2  # m moved within the window below which the robot is stuck
-    recover_back_ticks: int = 3  # ticks of backing up
-    recover_turn_ticks: int = 6  # ticks of turning after backing up
+    recover_back_steps: int = 3  # backing up
+    recover_turn_steps: int = 6  # turning after backing up
     recover_back_speed: float = 0.4  # fraction of the max linear speed, backwards
     virtual_obstacle_distance: float = 0.3  # m ahead of the robot centre
     virtual_obstacle_radius: float = 0.08  # m
     virtual_obstacle_hits: float = 100.0  # evidence count (outvotes later free evidence)
-    no_path_ticks: int = 8  # ticks without a path before a recovery turn
+    no_path_steps: int = 8  # without a path before a recovery
 
     def __post_init__(self) -> None:
         if isinstance(self.field, dict):
@@ -72,16 +73,20 @@ class NavigatorConfig:
                     "virtual_obstacle_radius", "virtual_obstacle_hits"):  # fmt: skip
             if not getattr(self, key) >= 0:
                 raise ValueError(f"navigator.{key}={getattr(self, key)} must be >= 0")
-        for key in ("confirm_ticks", "min_goal_pixels", "verify_ticks", "stuck_ticks",
-                    "no_path_ticks"):  # fmt: skip
+        for key in ("confirm_ticks", "min_goal_pixels", "verify_steps", "stuck_steps",
+                    "no_path_steps", "plan_every"):  # fmt: skip
             if int(getattr(self, key)) < 1:
                 raise ValueError(f"navigator.{key}={getattr(self, key)} must be >= 1")
-        for key in ("recover_back_ticks", "recover_turn_ticks"):
+        for key in ("recover_back_steps", "recover_turn_steps"):
             if int(getattr(self, key)) < 0:
                 raise ValueError(f"navigator.{key}={getattr(self, key)} must be >= 0")
         for key in ("turn_rate", "recover_back_speed", "pixel_threshold"):
             if not 0.0 < getattr(self, key) <= 1.0:
                 raise ValueError(f"navigator.{key}={getattr(self, key)} must be in (0, 1]")
+
+    def ticks(self, steps: int) -> int:
+        """Planner ticks covering ``steps`` control steps (at least 1 for steps > 0)."""
+        return math.ceil(steps / self.plan_every) if steps > 0 else 0
 
 
 @dataclass
@@ -113,7 +118,9 @@ class Navigator:
         self.ticks = 0
         self.turned = 0.0
         self.last_yaw: float | None = None
-        self.positions: deque[np.ndarray] = deque(maxlen=self.config.stuck_ticks + 1)
+        self.positions: deque[np.ndarray] = deque(
+            maxlen=self.config.ticks(self.config.stuck_steps) + 1
+        )
         self.recover_left = 0
         self.verify_count = 0
         self.no_path_count = 0
@@ -174,12 +181,12 @@ class Navigator:
             return self._command_plan("look_around", (0.0, cfg.turn_rate))
         if self.recover_left > 0:
             self.recover_left -= 1
-            backing = self.recover_left >= cfg.recover_turn_ticks
+            backing = self.recover_left >= cfg.ticks(cfg.recover_turn_steps)
             command = (-cfg.recover_back_speed, 0.0) if backing else (0.0, cfg.turn_rate)
             return self._command_plan("recover", command)
 
         if self.committed and distance <= cfg.stop_distance:
-            if visible or self.verify_count >= cfg.verify_ticks:
+            if visible or self.verify_count >= cfg.ticks(cfg.verify_steps):
                 return NavPlan(np.zeros((0, 2)), "stop", 0.0, True)
             self.verify_count += 1
             bearing = math.atan2(nearest[1] - robot_xy[1], nearest[0] - robot_xy[0])
@@ -193,7 +200,7 @@ class Navigator:
             return self._start_recovery(pose)
         if not bool(out.has_path[0]):
             self.no_path_count += 1
-            if self.no_path_count >= cfg.no_path_ticks:
+            if self.no_path_count >= cfg.ticks(cfg.no_path_steps):
                 self.no_path_count = 0
                 return self._start_recovery(pose)
             return self._command_plan(mode, (0.0, cfg.turn_rate))
@@ -257,9 +264,9 @@ class Navigator:
         return not occupied[rc[:, 0], rc[:, 1]].any()
 
     def _stuck(self) -> bool:
-        """Moved less than stuck_distance over the last stuck_ticks ticks (window full)."""
+        """Moved less than stuck_distance over the last stuck_steps (window full)."""
         cfg = self.config
-        if len(self.positions) <= cfg.stuck_ticks:
+        if len(self.positions) <= cfg.ticks(cfg.stuck_steps):
             return False
         pts = np.stack(self.positions)  # (T, 2)
         spread = np.linalg.norm(pts - pts[-1], axis=-1).max()
@@ -273,12 +280,12 @@ class Navigator:
         heading = np.array([math.cos(pose[2]), math.sin(pose[2])])
         centre = pose[:2] + cfg.virtual_obstacle_distance * heading  # (2,) map frame
         self.mark_obstacle(centre, cfg.virtual_obstacle_radius)
-        self.recover_left = cfg.recover_back_ticks + cfg.recover_turn_ticks
+        self.recover_left = cfg.ticks(cfg.recover_back_steps) + cfg.ticks(cfg.recover_turn_steps)
         logger.debug("navigator: stuck at %s, recovery %d", pose, self.recoveries)
         if self.recover_left == 0:
             return self._command_plan("recover", (0.0, 0.0))
         self.recover_left -= 1
-        backing = self.recover_left >= cfg.recover_turn_ticks
+        backing = self.recover_left >= cfg.ticks(cfg.recover_turn_steps)
         command = (-cfg.recover_back_speed, 0.0) if backing else (0.0, cfg.turn_rate)
         return self._command_plan("recover", command)
 

@@ -93,7 +93,8 @@ def lookahead_target(waypoints: np.ndarray, lookahead: float) -> np.ndarray:
     length = np.maximum((seg**2).sum(-1), 1e-12)  # (K,)
     t = np.clip(-(pts[:-1] * seg).sum(-1) / length, 0.0, 1.0)  # (K,) projection of the robot
     foot = pts[:-1] + t[:, None] * seg  # (K, 2)
-    k = int(np.argmin((foot**2).sum(-1)))
+    d2 = (foot**2).sum(-1)  # (K,)
+    k = int(np.nonzero(d2 <= d2.min() + 1e-9)[0][-1])  # ties: the latest segment
     path = np.concatenate([foot[k : k + 1], pts[k + 1 :]])  # (M, 2) from the nearest point
     arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
     s = min(lookahead, float(arc[-1]))
