@@ -33,7 +33,7 @@ import numpy as np
 import torch
 from scipy import ndimage
 
-from vla_gr.core.field_map import OCC_HITS, points_to_cells
+from vla_gr.core.field_map import FREE_HITS, OCC_HITS, points_to_cells
 from vla_gr.core.gr_field import GRField, GRFieldConfig
 from vla_gr.geometry.camera import project_depth
 
@@ -65,12 +65,16 @@ class NavigatorConfig:
     virtual_obstacle_radius: float = 0.08  # m
     virtual_obstacle_hits: float = 100.0  # evidence count (outvotes later free evidence)
     no_path_steps: int = 8  # without a path before a recovery
+    # unseen cells this close to where the robot stands count as explored: frontiers in the
+    # camera's blind spots (under furniture, beside the base) cannot pull it back and forth
+    visited_clear_radius: float = 0.8  # m
 
     def __post_init__(self) -> None:
         if isinstance(self.field, dict):
             self.field = GRFieldConfig(**self.field)
         for key in ("look_around_angle", "stop_distance", "stuck_distance",
-                    "virtual_obstacle_radius", "virtual_obstacle_hits"):  # fmt: skip
+                    "virtual_obstacle_radius", "virtual_obstacle_hits",
+                    "visited_clear_radius"):  # fmt: skip
             if not getattr(self, key) >= 0:
                 raise ValueError(f"navigator.{key}={getattr(self, key)} must be >= 0")
         for key in ("confirm_ticks", "min_goal_pixels", "verify_steps", "stuck_steps",
@@ -151,6 +155,7 @@ class Navigator:
         visible = self._vote(depth, pose, like)  # goal pixels in view now
         confirmed = self.goal_votes >= cfg.confirm_ticks  # (H, W)
         gate = torch.from_numpy(confirmed)[None]  # (1, H, W)
+        self.mark_visited(pose[0, :2].numpy(), cfg.visited_clear_radius)
         out = self.field.update({"depth": depth, "pose": pose}, like, goal_gate=gate)
         self.last_output = out
         maps = self.field.last_maps
@@ -289,21 +294,38 @@ class Navigator:
         command = (-cfg.recover_back_speed, 0.0) if backing else (0.0, cfg.turn_rate)
         return self._command_plan("recover", command)
 
-    def mark_obstacle(self, xy: np.ndarray, radius: float) -> None:
-        """Add obstacle evidence to the cells within ``radius`` of map-frame point ``xy`` (2,)."""
-        grid, h = self.field.grid, self.field.grid.cell_size
+    def _disk_cells(self, xy: np.ndarray, radius: float) -> torch.Tensor:
+        """Cells (D, 2) as (row, col) within ``radius`` of map-frame point ``xy`` (2,)."""
+        h = self.field.grid.cell_size
         k = int(math.ceil(radius / h))
         offs = np.arange(-k, k + 1) * h
         dx, dy = np.meshgrid(offs, offs)
         disk = dx**2 + dy**2 <= radius**2
         pts = torch.tensor(np.stack([dx[disk], dy[disk]], -1) + xy, dtype=torch.float32)
-        cells, inside = points_to_cells(pts, grid)  # (D, 2), (D,)
-        cells = cells[inside]
+        cells, inside = points_to_cells(pts, self.field.grid)  # (D, 2), (D,)
+        return cells[inside]
+
+    def mark_obstacle(self, xy: np.ndarray, radius: float) -> None:
+        """Add obstacle evidence to the cells within ``radius`` of map-frame point ``xy`` (2,)."""
+        cells = self._disk_cells(xy, radius)  # (D, 2)
         if self.field.map_state.shape[0] == 0 or len(cells) == 0:
             return
         self.field.map_state[0, OCC_HITS, cells[:, 0], cells[:, 1]] += (
             self.config.virtual_obstacle_hits
         )
+
+    def mark_visited(self, xy: np.ndarray, radius: float) -> None:
+        """Count the unseen cells within ``radius`` of ``xy`` (2,) as seen free (one hit).
+
+        Obstacle evidence still wins over it, so a cell seen occupied stays occupied.
+        """
+        if radius <= 0 or self.field.map_state.shape[0] == 0:
+            return
+        cells = self._disk_cells(xy, radius)  # (D, 2)
+        state = self.field.map_state[0]  # (4, H, W)
+        seen = (state[:, cells[:, 0], cells[:, 1]] > 0).any(dim=0)  # (D,)
+        cells = cells[~seen]
+        state[FREE_HITS, cells[:, 0], cells[:, 1]] += 1.0
 
 
 def _wrap(angle: float) -> float:
