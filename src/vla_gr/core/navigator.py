@@ -8,7 +8,7 @@ open-loop command, the mode, a goal confidence and a STOP request.
 Modes and transitions (checked in this order every tick)::
 
     look_around  turn in place until look_around_angle is covered (or a goal is confirmed)
-    recover      stuck: a virtual obstacle ahead, back up, turn; then re-plan
+    recover      blocked or stuck: (a virtual obstacle ahead,) back up, turn; then re-plan
     stop         a confirmed goal cell within stop_distance, in line of sight, seen now
     verify       a confirmed goal within stop_distance but not in view: turn towards it
     approach     a confirmed goal: follow the field's geodesic to it
@@ -16,13 +16,17 @@ Modes and transitions (checked in this order every tick)::
 
 Multi-frame confirmation: a map cell becomes a goal for the field only after goal pixels
 landed in it on ``confirm_ticks`` different ticks, so a single false positive never attracts.
-Stuck detection: in explore/approach, the robot moved less than ``stuck_distance`` over the
-last ``stuck_steps`` control steps (SemExp/Stubborn) or has had no path for a while; recovery
-marks a virtual obstacle in front (the path then bends around it), backs up and turns.
+Blocked: the plan wanted to drive ahead (its pursuit point within ``drive_bearing``) on every
+tick of the last ``blocked_steps`` control steps but the robot moved less than
+``blocked_distance`` (Stubborn's collision test): a virtual obstacle is marked in front (the
+path then bends around it), the robot backs up and turns. Stuck: less than ``stuck_distance``
+over ``stuck_steps`` in explore/approach: back up and turn. No path for ``no_path_steps``:
+the virtual obstacles are forgotten (they may close a door), else back up and turn.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -35,6 +39,7 @@ from scipy import ndimage
 
 from vla_gr.core.field_map import FREE_HITS, OCC_HITS, points_to_cells
 from vla_gr.core.gr_field import GRField, GRFieldConfig
+from vla_gr.core.pure_pursuit import lookahead_target
 from vla_gr.geometry.camera import project_depth
 
 logger = logging.getLogger(__name__)
@@ -56,8 +61,12 @@ class NavigatorConfig:
     goal_halo_cells: int = 2  # occupied cells this close to goal cells do not block the view
     plan_every: int = 1  # control steps per tick: the *_steps durations below become ticks
     verify_steps: int = 12  # turning towards the goal before stopping anyway
-    stuck_steps: int = 40  # window of the no-progress test
-    stuck_distance: float = 0.2  # m moved within the window below which the robot is stuck
+    blocked_steps: int = 15  # window of the blocked test (driving ahead, not moving)
+    blocked_distance: float = 0.1  # m
+    drive_bearing: float = math.radians(50.0)  # pursuit point within this: the plan drives
+    pursuit_lookahead: float = 0.6  # m, the follower's lookahead (for the drive test)
+    stuck_steps: int = 100  # window of the no-progress test
+    stuck_distance: float = 0.3  # m moved within the window below which the robot is stuck
     recover_back_steps: int = 3  # backing up
     recover_turn_steps: int = 6  # turning after backing up
     recover_back_speed: float = 0.4  # fraction of the max linear speed, backwards
@@ -65,20 +74,29 @@ class NavigatorConfig:
     virtual_obstacle_radius: float = 0.08  # m
     virtual_obstacle_hits: float = 100.0  # evidence count (outvotes later free evidence)
     no_path_steps: int = 8  # without a path before a recovery
+    # no path even without virtual obstacles: plan for a thinner robot for a while (passages
+    # the conservative inflation closes on a coarse map; the depth check still guards)
+    tight_radius: float = 0.1  # m
+    tight_steps: int = 150
     # unseen cells this close to where the robot stands count as explored: frontiers in the
     # camera's blind spots (under furniture, beside the base) cannot pull it back and forth
     visited_clear_radius: float = 0.8  # m
+    # obstacle cells with at most noise_max_hits points but noise_free_ratio times as many
+    # free-space hits are mapping noise (grazing points of a door jamb): forgotten, so that
+    # one stray point never closes a door for good
+    noise_max_hits: float = 2.0
+    noise_free_ratio: float = 4.0
 
     def __post_init__(self) -> None:
         if isinstance(self.field, dict):
             self.field = GRFieldConfig(**self.field)
-        for key in ("look_around_angle", "stop_distance", "stuck_distance",
+        for key in ("look_around_angle", "stop_distance", "stuck_distance", "blocked_distance",
                     "virtual_obstacle_radius", "virtual_obstacle_hits",
-                    "visited_clear_radius"):  # fmt: skip
+                    "visited_clear_radius", "tight_radius"):  # fmt: skip
             if not getattr(self, key) >= 0:
                 raise ValueError(f"navigator.{key}={getattr(self, key)} must be >= 0")
         for key in ("confirm_ticks", "min_goal_pixels", "verify_steps", "stuck_steps",
-                    "no_path_steps", "plan_every"):  # fmt: skip
+                    "blocked_steps", "no_path_steps", "plan_every", "tight_steps"):  # fmt: skip
             if int(getattr(self, key)) < 1:
                 raise ValueError(f"navigator.{key}={getattr(self, key)} must be >= 1")
         for key in ("recover_back_steps", "recover_turn_steps"):
@@ -110,7 +128,7 @@ class Navigator:
 
     def __init__(self, config: NavigatorConfig | None = None) -> None:
         self.config = config or NavigatorConfig()
-        self.field = GRField(self.config.field)
+        self.field = GRField(dataclasses.replace(self.config.field))  # its own copy
         self.reset()
 
     def reset(self) -> None:
@@ -124,7 +142,14 @@ class Navigator:
         self.last_yaw: float | None = None
         self.positions: deque[np.ndarray] = deque(
             maxlen=self.config.ticks(self.config.stuck_steps) + 1
-        )
+        )  # (2,) per driving tick
+        self.drives: deque[tuple[np.ndarray, bool]] = deque(
+            maxlen=self.config.ticks(self.config.blocked_steps) + 1
+        )  # ((2,), the plan drove ahead) per driving tick
+        self.virtual: list[torch.Tensor] = []  # (D, 2) cells of each virtual obstacle
+        self.field.config.robot_radius = self.config.field.robot_radius
+        self._radius = self.config.field.robot_radius  # the planning radius outside tight mode
+        self.tight_left = 0
         self.recover_left = 0
         self.verify_count = 0
         self.no_path_count = 0
@@ -155,7 +180,12 @@ class Navigator:
         visible = self._vote(depth, pose, like)  # goal pixels in view now
         confirmed = self.goal_votes >= cfg.confirm_ticks  # (H, W)
         gate = torch.from_numpy(confirmed)[None]  # (1, H, W)
+        if self.tight_left > 0:
+            self.tight_left -= 1
+            if self.tight_left == 0:
+                self.field.config.robot_radius = self._radius
         self.mark_visited(pose[0, :2].numpy(), cfg.visited_clear_radius)
+        self.forget_noise()
         out = self.field.update({"depth": depth, "pose": pose}, like, goal_gate=gate)
         self.last_output = out
         maps = self.field.last_maps
@@ -201,16 +231,28 @@ class Navigator:
 
         mode = "approach" if self.committed else "explore"
         self.positions.append(pose[:2].copy())  # progress is judged while driving only
+        if self._blocked():
+            return self._start_recovery(pose, mark=True)
         if self._stuck():
-            return self._start_recovery(pose)
+            return self._start_recovery(pose, mark=False)
         if not bool(out.has_path[0]):
+            self.drives.append((pose[:2].copy(), False))
             self.no_path_count += 1
             if self.no_path_count >= cfg.ticks(cfg.no_path_steps):
                 self.no_path_count = 0
-                return self._start_recovery(pose)
+                if self.virtual:
+                    self.clear_virtual_obstacles()
+                elif self.tight_left == 0 and cfg.tight_radius < self._radius:
+                    self.field.config.robot_radius = cfg.tight_radius
+                    self.tight_left = cfg.ticks(cfg.tight_steps)
+                else:
+                    return self._start_recovery(pose, mark=False)
             return self._command_plan(mode, (0.0, cfg.turn_rate))
         self.no_path_count = 0
         waypoints = out.waypoints[0].numpy().astype(np.float64)  # (K, 2)
+        target = lookahead_target(waypoints, cfg.pursuit_lookahead)  # (2,) robot frame
+        ahead = abs(math.atan2(target[1], target[0])) < cfg.drive_bearing
+        self.drives.append((pose[:2].copy(), bool(ahead and np.hypot(*target) > 0.2)))
         return NavPlan(waypoints, mode, 0.0, False)
 
     # ------------------------------------------------------------------ pieces
@@ -218,6 +260,7 @@ class Navigator:
     def _command_plan(self, mode: str, command: tuple[float, float]) -> NavPlan:
         if mode in ("look_around", "recover", "verify"):
             self.positions.clear()
+            self.drives.clear()
         return NavPlan(np.zeros((0, 2)), mode, 0.0, False, command=command)
 
     def _vote(self, depth, pose, like) -> bool:
@@ -277,14 +320,26 @@ class Navigator:
         spread = np.linalg.norm(pts - pts[-1], axis=-1).max()
         return bool(spread < cfg.stuck_distance)
 
-    def _start_recovery(self, pose: np.ndarray) -> NavPlan:
-        """Mark a virtual obstacle ahead, then back up and turn (Stubborn's untrap)."""
+    def _blocked(self) -> bool:
+        """The plan drove ahead on every tick of a full window, and the robot barely moved."""
+        cfg = self.config
+        if len(self.drives) <= cfg.ticks(cfg.blocked_steps):
+            return False
+        if not all(drive for _, drive in list(self.drives)[:-1]):
+            return False
+        pts = np.stack([xy for xy, _ in self.drives])  # (T, 2)
+        return bool(np.linalg.norm(pts - pts[-1], axis=-1).max() < cfg.blocked_distance)
+
+    def _start_recovery(self, pose: np.ndarray, mark: bool) -> NavPlan:
+        """(Mark a virtual obstacle ahead,) then back up and turn (Stubborn's untrap)."""
         cfg = self.config
         self.recoveries += 1
         self.positions.clear()
-        heading = np.array([math.cos(pose[2]), math.sin(pose[2])])
-        centre = pose[:2] + cfg.virtual_obstacle_distance * heading  # (2,) map frame
-        self.mark_obstacle(centre, cfg.virtual_obstacle_radius)
+        self.drives.clear()
+        if mark:
+            heading = np.array([math.cos(pose[2]), math.sin(pose[2])])
+            centre = pose[:2] + cfg.virtual_obstacle_distance * heading  # (2,) map frame
+            self.mark_obstacle(centre, cfg.virtual_obstacle_radius)
         self.recover_left = cfg.ticks(cfg.recover_back_steps) + cfg.ticks(cfg.recover_turn_steps)
         logger.debug("navigator: stuck at %s, recovery %d", pose, self.recoveries)
         if self.recover_left == 0:
@@ -313,6 +368,24 @@ class Navigator:
         self.field.map_state[0, OCC_HITS, cells[:, 0], cells[:, 1]] += (
             self.config.virtual_obstacle_hits
         )
+        self.virtual.append(cells)
+
+    def clear_virtual_obstacles(self) -> None:
+        """Take back the evidence of every virtual obstacle (seen obstacles stay)."""
+        occ = self.field.map_state[0, OCC_HITS]  # (H, W)
+        for cells in self.virtual:
+            occ[cells[:, 0], cells[:, 1]] -= self.config.virtual_obstacle_hits
+        occ.clamp_(min=0.0)
+        self.virtual.clear()
+
+    def forget_noise(self) -> None:
+        """Drop obstacle evidence that free-space evidence outvotes (see ``noise_*``)."""
+        if self.field.map_state.shape[0] == 0:
+            return
+        cfg, state = self.config, self.field.map_state[0]  # (4, H, W)
+        occ, free = state[OCC_HITS], state[FREE_HITS]  # (H, W) each
+        noise = (occ > 0) & (occ <= cfg.noise_max_hits) & (free >= cfg.noise_free_ratio * occ)
+        occ[noise] = 0.0
 
     def mark_visited(self, xy: np.ndarray, radius: float) -> None:
         """Count the unseen cells within ``radius`` of ``xy`` (2,) as seen free (one hit).
