@@ -113,20 +113,31 @@ def test_stop_only_when_the_confirmed_goal_is_within_stop_distance():
     assert not plan.stop and plan.mode == "verify" and plan.command[0] == 0.0
 
 
-def test_stuck_detection_fires_after_the_window_and_recovery_backs_up():
-    nav = make_nav(look_around_angle=0.0, stuck_steps=10, stuck_distance=0.2)
+def test_blocked_fires_after_the_window_marks_an_obstacle_and_backs_up():
+    nav = make_nav(look_around_angle=0.0, blocked_steps=10, stuck_steps=1000)
     pose = (0.0, 0.0, 0.0)
-    modes = [tick(nav, pose).mode for _ in range(12)]
-    assert modes[:10] == ["explore"] * 10  # window not full yet
-    assert modes[10] == "recover" and nav.recoveries == 1
-    occ_before = nav.field.map_state[0, 0].clone()
-    plan = tick(nav, pose)
-    assert plan.mode == "recover" and plan.command is not None
-    assert plan.command[0] <= 0.0  # backs up or turns: never drives into the blockage
-    assert (nav.field.map_state[0, 0] >= occ_before).all()
+    like = wall_goal(room_depth(pose))  # a goal straight ahead: the plan drives forward
+    modes = [tick(nav, pose, like).mode for _ in range(12)]
+    assert modes[:11] == ["explore"] + ["approach"] * 10  # confirmed at tick 2, window 10
+    assert modes[11] == "recover" and nav.recoveries == 1
+    plan = tick(nav, pose, like)
+    assert plan.mode == "recover" and plan.command[0] < 0.0  # backs up first
     r, c = nav.field.grid.world_to_cell(np.array([0.3, 0.0]))
     near = nav.field.map_state[0, 0, r - 1 : r + 2, c - 1 : c + 2]  # (3, 3) around the spot
     assert near.max() >= nav.config.virtual_obstacle_hits  # a virtual obstacle in front
+    nav.clear_virtual_obstacles()
+    assert nav.field.map_state[0, 0, r - 1 : r + 2, c - 1 : c + 2].max() < 10
+
+
+def test_no_progress_fires_after_the_window_without_a_virtual_obstacle():
+    nav = make_nav(look_around_angle=0.0, stuck_steps=10, blocked_steps=1000)
+    pose = (0.0, 0.0, 0.0)
+    modes = [tick(nav, pose).mode for _ in range(12)]
+    assert modes[:10] == ["explore"] * 10  # window not full yet
+    assert modes[10] == "recover" and nav.recoveries == 1 and not nav.virtual
+    moving = make_nav(look_around_angle=0.0, stuck_steps=10, blocked_steps=1000)
+    modes = [tick(moving, (0.05 * k, 0.0, 0.0)).mode for k in range(12)]
+    assert "recover" not in modes  # 0.5 m in the window is progress
 
 
 def test_durations_scale_with_plan_every():
@@ -187,3 +198,26 @@ def test_lookahead_skips_passed_waypoints():
     wps = np.array([[-1.0, 0.0], [0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
     target = lookahead_target(wps, 0.6)
     assert target == pytest.approx([0.6, 0.0])
+
+
+def test_noise_is_forgotten_but_real_obstacles_stay():
+    nav = make_nav(look_around_angle=0.0)
+    tick(nav, (0.0, 0.0, 0.0))
+    state = nav.field.map_state[0]  # (4, H, W)
+    state[:, 5, 5] = 0.0
+    state[0, 5, 5], state[1, 5, 5] = 1.0, 10.0  # one stray point in a cell seen free 10 times
+    state[:, 6, 6] = 0.0
+    state[0, 6, 6], state[1, 6, 6] = 5.0, 10.0  # a real obstacle seen repeatedly
+    nav.forget_noise()
+    assert state[0, 5, 5] == 0.0 and state[0, 6, 6] == 5.0
+
+
+def test_visited_cells_count_as_explored_without_hiding_obstacles():
+    nav = make_nav(look_around_angle=0.0)
+    tick(nav, (0.0, 0.0, 0.0))
+    state = nav.field.map_state[0]  # (4, H, W)
+    r, c = nav.field.grid.world_to_cell(np.array([-0.6, 0.0]))  # behind: never seen
+    assert state[:, r, c].sum() == 0
+    state[0, r + 1, c] = 3.0  # an obstacle seen beside it
+    nav.mark_visited(np.array([0.0, 0.0]), 0.8)
+    assert state[1, r, c] == 1.0 and state[1, r + 1, c] == 0.0
