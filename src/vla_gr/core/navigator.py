@@ -58,6 +58,9 @@ class NavigatorConfig:
     confirm_ticks: int = 2  # ticks with goal votes before a cell is a goal
     min_goal_pixels: int = 3  # goal pixels for "the goal is in view now"
     stop_distance: float = 0.8  # m from the robot centre to a confirmed goal cell
+    # at the end of the path (a goal in a corner: the stand-off is no nearer) this is enough
+    stop_distance_at_end: float = 0.9  # m
+    path_end_distance: float = 0.3  # m: the last waypoint this close means the path ends here
     goal_halo_cells: int = 2  # occupied cells this close to goal cells do not block the view
     plan_every: int = 1  # control steps per tick: the *_steps durations below become ticks
     verify_steps: int = 12  # turning towards the goal before stopping anyway
@@ -91,6 +94,7 @@ class NavigatorConfig:
         if isinstance(self.field, dict):
             self.field = GRFieldConfig(**self.field)
         for key in ("look_around_angle", "stop_distance", "stuck_distance", "blocked_distance",
+                    "stop_distance_at_end", "path_end_distance",
                     "virtual_obstacle_radius", "virtual_obstacle_hits",
                     "visited_clear_radius", "tight_radius"):  # fmt: skip
             if not getattr(self, key) >= 0:
@@ -220,7 +224,11 @@ class Navigator:
             command = (-cfg.recover_back_speed, 0.0) if backing else (0.0, cfg.turn_rate)
             return self._command_plan("recover", command)
 
-        if self.committed and distance <= cfg.stop_distance:
+        at_end = bool(out.has_path[0]) and float(out.waypoints[0, -1].norm()) <= (
+            cfg.path_end_distance
+        )
+        near = distance <= (cfg.stop_distance_at_end if at_end else cfg.stop_distance)
+        if self.committed and near:
             if visible or self.verify_count >= cfg.ticks(cfg.verify_steps):
                 return NavPlan(np.zeros((0, 2)), "stop", 0.0, True)
             self.verify_count += 1

@@ -28,6 +28,9 @@ class PursuitConfig:
     lookahead: float = 0.6  # m: the pursued point's distance along the waypoints
     arrive_distance: float = 0.15  # m: the last waypoint closer than this is reached
     turn_in_place: float = math.radians(50.0)  # |heading error| above this: turn in place
+    # with an obstacle within slow_distance straight ahead, turn in place above this error
+    # instead of arcing into it
+    turn_in_place_near: float = math.radians(15.0)
     heading_gain: float = 2.5  # turn-in-place rate per radian of heading error
     min_turn: float = 0.3  # turn-in-place fraction floor, so a small error still closes
     max_linear: float = 1.0  # cap of the linear fraction
@@ -50,6 +53,8 @@ class PursuitConfig:
         ):  # fmt: skip
             if not getattr(self, key) > 0:
                 raise ValueError(f"pursuit.{key}={getattr(self, key)} must be > 0")
+        if not 0.0 < self.turn_in_place_near <= self.turn_in_place:
+            raise ValueError("pursuit.turn_in_place_near must be in (0, turn_in_place]")
         if not 0.0 < self.turn_in_place <= math.pi:
             raise ValueError(f"pursuit.turn_in_place={self.turn_in_place} must be in (0, pi]")
         if not 0.0 <= self.min_turn <= 1.0 or not 0.0 < self.max_linear <= 1.0:
@@ -101,8 +106,11 @@ def lookahead_target(waypoints: np.ndarray, lookahead: float) -> np.ndarray:
     return np.array([np.interp(s, arc, path[:, 0]), np.interp(s, arc, path[:, 1])])
 
 
-def clearance_ahead(depth: np.ndarray, cfg: PursuitConfig) -> float:
-    """Forward distance (m) from the robot centre to the nearest obstacle point in its corridor.
+def clearance_ahead(depth: np.ndarray, cfg: PursuitConfig, bearing: float = 0.0) -> float:
+    """Distance (m) from the robot centre to the nearest obstacle point in its corridor.
+
+    The corridor (robot width + ``side_margin``) runs from the robot along ``bearing``
+    (radians, counter-clockwise from the heading).
 
     Args:
         depth: (H, W) or (H, W, 1) planar depth in metres.
@@ -119,23 +127,31 @@ def clearance_ahead(depth: np.ndarray, cfg: PursuitConfig) -> float:
     up = cfg.camera_height - ((np.arange(H) + 0.5 - K.cy) / K.fy)[:, None] * d  # (H, W) height
     ok = np.isfinite(d) & (d > cfg.min_depth)
     band = ok & (up >= cfg.floor_height) & (up <= cfg.robot_height)
-    corridor = band & (np.abs(left) <= cfg.robot_radius + cfg.side_margin)  # (H, W)
-    return float(d[corridor].min()) if corridor.any() else math.inf
+    c, s = math.cos(bearing), math.sin(bearing)
+    along = c * d + s * left  # (H, W) distance along the corridor
+    across = -s * d + c * left  # (H, W)
+    corridor = band & (along > 0) & (np.abs(across) <= cfg.robot_radius + cfg.side_margin)
+    return float(along[corridor].min()) if corridor.any() else math.inf
 
 
-def pursuit_action(target: np.ndarray, cfg: PursuitConfig, clearance: float = math.inf):
+def pursuit_action(
+    target: np.ndarray, cfg: PursuitConfig, clearance: float = math.inf, ahead=math.inf
+):
     """(v, w) fractions in [-1, 1] driving towards ``target`` (2,) in the robot frame.
 
-    Heading errors above ``turn_in_place`` turn in place; otherwise the pure-pursuit arc
-    (curvature 2 sin(alpha) / L) at a speed that falls with the heading error, is capped so
-    the arc's turn rate fits ``max_angular_speed`` and falls to 0 as ``clearance`` (m, the
-    nearest obstacle ahead) drops to ``stop_distance``.
+    Heading errors above ``turn_in_place`` (``turn_in_place_near`` when an obstacle is within
+    ``slow_distance`` straight ahead, ``ahead`` m) turn in place; otherwise the pure-pursuit
+    arc (curvature 2 sin(alpha) / L) at a speed that falls with the heading error, is capped
+    so the arc's turn rate fits ``max_angular_speed`` and falls to 0 as ``clearance`` (m, the
+    nearest obstacle in the corridor towards the target) drops to ``stop_distance``.
     """
     dist = float(np.hypot(target[0], target[1]))
     if dist < 1e-6:
         return 0.0, 0.0
     alpha = math.atan2(target[1], target[0])
-    if abs(alpha) > cfg.turn_in_place:
+    limit = cfg.turn_in_place_near if ahead < cfg.slow_distance else cfg.turn_in_place
+    clearance = min(clearance, ahead)
+    if abs(alpha) > limit:
         rate = max(cfg.min_turn, min(1.0, cfg.heading_gain * abs(alpha)))
         return 0.0, math.copysign(rate, alpha)
     v = cfg.max_linear_speed * cfg.max_linear * math.cos(alpha) ** 2  # m/s
@@ -195,5 +211,7 @@ class PurePursuit:
         if np.hypot(*ego[-1]) < cfg.arrive_distance:
             return np.array([0.0, 0.0, -1.0], np.float32)
         target = lookahead_target(ego, cfg.lookahead)  # (2,)
-        v, w = pursuit_action(target, cfg, self.last_clearance)
+        bearing = math.atan2(target[1], target[0])
+        towards = clearance_ahead(depth, cfg, bearing) if abs(bearing) > 1e-3 else math.inf
+        v, w = pursuit_action(target, cfg, towards, self.last_clearance)
         return np.array([np.clip(v, -1, 1), np.clip(w, -1, 1), -1.0], np.float32)
