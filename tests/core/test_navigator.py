@@ -221,3 +221,16 @@ def test_visited_cells_count_as_explored_without_hiding_obstacles():
     state[0, r + 1, c] = 3.0  # an obstacle seen beside it
     nav.mark_visited(np.array([0.0, 0.0]), 0.8)
     assert state[1, r, c] == 1.0 and state[1, r + 1, c] == 0.0
+
+
+def test_pursuit_turns_in_place_instead_of_arcing_into_a_near_obstacle():
+    cfg = PursuitConfig()
+    target = np.array([1.0, math.tan(math.radians(30.0))])  # 30 degrees left
+    v, w = pursuit_action(target, cfg, ahead=math.inf)
+    assert v > 0 and w > 0  # open space: an arc
+    v, w = pursuit_action(target, cfg, ahead=0.5 * (cfg.stop_distance + cfg.slow_distance))
+    assert v == 0.0 and w > 0  # a jamb ahead: turn first
+    wall = room_depth((ROOM[1] - 0.5, 0.0, 0.0))  # a wall 0.5 m ahead
+    a, half = math.radians(35.0), cfg.robot_radius + cfg.side_margin
+    expected = (0.5 - half * math.sin(a)) / math.cos(a)  # the corridor's edge meets the wall
+    assert clearance_ahead(wall, cfg, bearing=a) == pytest.approx(expected, abs=0.03)
