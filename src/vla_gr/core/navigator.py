@@ -79,8 +79,9 @@ class NavigatorConfig:
     no_path_steps: int = 8  # without a path before a recovery
     # no path even without virtual obstacles: plan for a thinner robot for a while (passages
     # the conservative inflation closes on a coarse map; the depth check still guards)
-    tight_radius: float = 0.1  # m
+    tight_radius: float = 0.05  # m
     tight_steps: int = 150
+    tight_speed: float = 0.5  # cap of the linear fraction while planning for a thinner robot
     # unseen cells this close to where the robot stands count as explored: frontiers in the
     # camera's blind spots (under furniture, beside the base) cannot pull it back and forth
     visited_clear_radius: float = 0.8  # m
@@ -106,7 +107,7 @@ class NavigatorConfig:
         for key in ("recover_back_steps", "recover_turn_steps"):
             if int(getattr(self, key)) < 0:
                 raise ValueError(f"navigator.{key}={getattr(self, key)} must be >= 0")
-        for key in ("turn_rate", "recover_back_speed", "pixel_threshold"):
+        for key in ("turn_rate", "recover_back_speed", "pixel_threshold", "tight_speed"):
             if not 0.0 < getattr(self, key) <= 1.0:
                 raise ValueError(f"navigator.{key}={getattr(self, key)} must be in (0, 1]")
 
@@ -125,6 +126,7 @@ class NavPlan:
     stop: bool  # STOP request
     command: tuple[float, float] | None = None  # open-loop (v, w) fractions until the next tick
     goal_distance: float = math.inf  # m from the robot to the nearest confirmed goal cell
+    max_speed: float = 1.0  # cap of the linear fraction the follower may use
 
 
 class Navigator:
@@ -202,6 +204,7 @@ class Navigator:
         p = pose[0].numpy().astype(np.float64)  # (3,)
         plan = self._decide(out, p, robot_xy, visible, distance, nearest, maps)
         plan.goal_confidence, plan.goal_distance = confidence, distance
+        plan.max_speed = cfg.tight_speed if self.tight_left > 0 else 1.0
         self.mode = plan.mode
         self.ticks += 1
         self.last_latency = time.perf_counter() - t0

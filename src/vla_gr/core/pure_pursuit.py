@@ -182,12 +182,14 @@ class PurePursuit:
         self._world: np.ndarray | None = None  # (K, 2) waypoints in the map frame
         self._command: tuple[float, float] | None = None
         self._stop = False
+        self._max_speed = 1.0
         self.last_clearance = math.inf
 
     def set_plan(self, plan, pose) -> None:
         """Take a new plan made at ``pose`` (3,); its waypoints (K, 2) are in that robot frame."""
         pose = np.asarray(pose, dtype=np.float64)
         self._stop = bool(plan.stop)
+        self._max_speed = float(getattr(plan, "max_speed", 1.0))
         self._command = None if plan.command is None else tuple(plan.command)
         wps = np.asarray(plan.waypoints, dtype=np.float64).reshape(-1, 2)  # (K, 2)
         self._world = to_world(wps, pose) if len(wps) else None  # (K, 2)
@@ -214,4 +216,6 @@ class PurePursuit:
         bearing = math.atan2(target[1], target[0])
         towards = clearance_ahead(depth, cfg, bearing) if abs(bearing) > 1e-3 else math.inf
         v, w = pursuit_action(target, cfg, towards, self.last_clearance)
+        if v > self._max_speed:  # slower on the same arc
+            v, w = self._max_speed, w * self._max_speed / v
         return np.array([np.clip(v, -1, 1), np.clip(w, -1, 1), -1.0], np.float32)
