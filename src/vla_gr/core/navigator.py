@@ -9,19 +9,27 @@ Modes and transitions (checked in this order every tick)::
 
     look_around  turn in place until look_around_angle is covered (or a goal is confirmed)
     recover      blocked or stuck: (a virtual obstacle ahead,) back up, turn; then re-plan
-    stop         a confirmed goal cell within stop_distance, in line of sight, seen now
-    verify       a confirmed goal within stop_distance but not in view: turn towards it
-    approach     a confirmed goal: follow the field's geodesic to it
+    stop         a confirmed goal cell within stop_distance (stop_distance_at_end when the
+                 path ends here), in line of sight, and goal pixels in view now
+    verify       the same but the goal is not in view: turn towards it (verify_steps at most)
+    approach     a confirmed goal: follow the field's geodesic to its stand-off
     explore      no confirmed goal: follow the field's geodesic to the frontier
 
-Multi-frame confirmation: a map cell becomes a goal for the field only after goal pixels
-landed in it on ``confirm_ticks`` different ticks, so a single false positive never attracts.
-Blocked: the plan wanted to drive ahead (its pursuit point within ``drive_bearing``) on every
-tick of the last ``blocked_steps`` control steps but the robot moved less than
-``blocked_distance`` (Stubborn's collision test): a virtual obstacle is marked in front (the
-path then bends around it), the robot backs up and turns. Stuck: less than ``stuck_distance``
-over ``stuck_steps`` in explore/approach: back up and turn. No path for ``no_path_steps``:
-the virtual obstacles are forgotten (they may close a door), else back up and turn.
+Multi-frame confirmation: a map cell becomes a goal for the field (``GRField.update``'s
+``goal_gate``) only after goal pixels landed in it on ``confirm_ticks`` different ticks, so a
+single false positive never attracts. Blocked: the plan wanted to drive ahead (its pursuit
+point within ``drive_bearing``) on every tick of the last ``blocked_steps`` control steps but
+the robot moved less than ``blocked_distance`` (Stubborn's collision test): a virtual obstacle
+is marked in front (the path then bends around it), the robot backs up and turns. Stuck: less
+than ``stuck_distance`` over ``stuck_steps`` in explore/approach: back up and turn. No path
+for ``no_path_steps``: the virtual obstacles are forgotten (they may close a door); if there
+are none, the field plans for a thinner robot (``tight_radius``, at ``tight_speed``) for
+``tight_steps``; after that, back up and turn.
+
+Map hygiene, every tick: unseen cells within ``visited_clear_radius`` of the robot count as
+seen (frontiers in the camera's blind spots stop pulling the robot back and forth), and
+obstacle cells with a few hits that free space outvotes are forgotten (``noise_*``).
+Durations are in control steps and become ticks through ``plan_every``.
 """
 
 from __future__ import annotations
