@@ -164,6 +164,7 @@ class Navigator:
         self.field.config.robot_radius = self.config.field.robot_radius
         self._radius = self.config.field.robot_radius  # the planning radius outside tight mode
         self.tight_left = 0
+        self.unreachable_count = 0
         self.recover_left = 0
         self.verify_count = 0
         self.no_path_count = 0
@@ -262,12 +263,18 @@ class Navigator:
                 if self.virtual:
                     self.clear_virtual_obstacles()
                 elif self.tight_left == 0 and cfg.tight_radius < self._radius:
-                    self.field.config.robot_radius = cfg.tight_radius
-                    self.tight_left = cfg.ticks(cfg.tight_steps)
+                    self._start_tight()
                 else:
                     return self._start_recovery(pose, mark=False)
             return self._command_plan(mode, (0.0, cfg.turn_rate))
         self.no_path_count = 0
+        # a confirmed goal the field cannot reach (it falls back to the frontier): the goal's
+        # stand-off may sit in a passage the conservative inflation closes; plan thinner
+        self.unreachable_count = (
+            self.unreachable_count + 1 if self.committed and not bool(out.goal_seen[0]) else 0
+        )
+        if self.unreachable_count >= cfg.ticks(cfg.no_path_steps) and self.tight_left == 0:
+            self._start_tight()
         waypoints = out.waypoints[0].numpy().astype(np.float64)  # (K, 2)
         target = lookahead_target(waypoints, cfg.pursuit_lookahead)  # (2,) robot frame
         ahead = abs(math.atan2(target[1], target[0])) < cfg.drive_bearing
@@ -338,6 +345,13 @@ class Navigator:
         pts = np.stack(self.positions)  # (T, 2)
         spread = np.linalg.norm(pts - pts[-1], axis=-1).max()
         return bool(spread < cfg.stuck_distance)
+
+    def _start_tight(self) -> None:
+        """Plan for a robot of ``tight_radius`` for the next ``tight_steps``."""
+        self.unreachable_count = 0
+        if self.config.tight_radius < self._radius:
+            self.field.config.robot_radius = self.config.tight_radius
+            self.tight_left = self.config.ticks(self.config.tight_steps)
 
     def _blocked(self) -> bool:
         """The plan drove ahead on every tick of a full window, and the robot barely moved."""
