@@ -234,3 +234,15 @@ def test_pursuit_turns_in_place_instead_of_arcing_into_a_near_obstacle():
     a, half = math.radians(35.0), cfg.robot_radius + cfg.side_margin
     expected = (0.5 - half * math.sin(a)) / math.cos(a)  # the corridor's edge meets the wall
     assert clearance_ahead(wall, cfg, bearing=a) == pytest.approx(expected, abs=0.03)
+
+
+def test_tight_mode_plans_thinner_and_slower_then_restores_the_radius():
+    nav = make_nav(look_around_angle=0.0, tight_steps=3, tight_radius=0.05)
+    pose = (0.0, 0.0, 0.0)
+    assert tick(nav, pose).max_speed == 1.0
+    nav._start_tight()
+    assert nav.field.config.robot_radius == 0.05
+    assert nav.config.field.robot_radius == 0.18  # the configured radius is untouched
+    speeds = [tick(nav, pose).max_speed for _ in range(4)]
+    assert speeds[:2] == [nav.config.tight_speed] * 2 and speeds[-1] == 1.0
+    assert nav.field.config.robot_radius == 0.18
