@@ -154,13 +154,16 @@ class GRField(nn.Module):
             goal = goal.reshape(depth.shape[0], -1)  # (B, H*W)
         return depth, pose, goal
 
-    def update(self, obs: dict, goal_likelihood=None) -> GRFieldOutput:
+    def update(self, obs: dict, goal_likelihood=None, goal_gate=None) -> GRFieldOutput:
         """Integrate one observation per batch element and recompute the field.
 
         Args:
             obs: dict with ``depth`` (B, H, W, 1) or (B, H, W) metres and ``pose`` (B, 3).
             goal_likelihood: (B, H, W) per-pixel probability that the pixel shows the goal, or
                 None (then only the frontier attracts).
+            goal_gate: (B, H, W) bool map cells that may count as goal (e.g. cells confirmed
+                over several ticks), or None (every cell may). Evidence is still accumulated
+                everywhere; the gate only decides which cells attract and are planned to.
         """
         cfg = self.config
         depth, pose, goal = self._inputs(obs, goal_likelihood)
@@ -185,9 +188,16 @@ class GRField(nn.Module):
             robot_radius=cfg.robot_radius,
         )  # fmt: skip
         self.last_timings = {"mapping": time.perf_counter() - t0}
-        return self._compute(pose)
+        if goal_gate is not None:
+            goal_gate = torch.as_tensor(goal_gate, device=self.map_state.device).bool()
+            if goal_gate.shape != (B, *self.grid.shape):
+                raise ValueError(
+                    f"goal_gate must be (B, H, W)={(B, *self.grid.shape)}, "
+                    f"got {tuple(goal_gate.shape)}"
+                )
+        return self._compute(pose, goal_gate)
 
-    def _compute(self, pose: torch.Tensor) -> GRFieldOutput:
+    def _compute(self, pose: torch.Tensor, goal_gate=None) -> GRFieldOutput:
         """Masses -> potential -> metric -> geodesics -> outputs, from the current map."""
         cfg, h = self.config, self.config.cell_size
         tick = self._stopwatch()
@@ -201,6 +211,8 @@ class GRField(nn.Module):
             robot_xy, cfg.frontier_min_distance
         )  # (B, H, W)
         goal_cells = (layers["goal"] >= cfg.goal_threshold) & explored  # (B, H, W)
+        if goal_gate is not None:
+            goal_cells = goal_cells & goal_gate  # (B, H, W)
         goal_seen = goal_cells.flatten(1).any(dim=1)  # (B,)
 
         rho_goal = normalise_mass(layers["goal"] * goal_cells, cfg.goal_mass, h)  # (B, H, W)

@@ -1,0 +1,439 @@
+"""S2 navigation behaviour on the GR field: look around, explore, approach, verify, recover, stop.
+
+A batch-1 state machine that owns a :class:`~vla_gr.core.gr_field.GRField`. Each planner tick
+takes depth, pose and a per-pixel goal likelihood (from whatever grounds the instruction; it
+never sees privileged state) and returns a :class:`NavPlan`: waypoints in the robot frame or an
+open-loop command, the mode, a goal confidence and a STOP request.
+
+Modes and transitions (checked in this order every tick)::
+
+    look_around  turn in place until look_around_angle is covered (or a goal is confirmed)
+    recover      blocked or stuck: (a virtual obstacle ahead,) back up, turn; then re-plan
+    stop         a confirmed goal cell within stop_distance (stop_distance_at_end when the
+                 path ends here), in line of sight, and goal pixels in view now
+    verify       the same but the goal is not in view: turn towards it (verify_steps at most)
+    approach     a confirmed goal: follow the field's geodesic to its stand-off
+    explore      no confirmed goal: follow the field's geodesic to the frontier
+
+Multi-frame confirmation: a map cell becomes a goal for the field (``GRField.update``'s
+``goal_gate``) only after goal pixels landed in it on ``confirm_ticks`` different ticks, so a
+single false positive never attracts. Blocked: the plan wanted to drive ahead (its pursuit
+point within ``drive_bearing``) on every tick of the last ``blocked_steps`` control steps but
+the robot moved less than ``blocked_distance`` (Stubborn's collision test): a virtual obstacle
+is marked in front (the path then bends around it), the robot backs up and turns. Stuck: less
+than ``stuck_distance`` over ``stuck_steps`` in explore/approach: back up and turn. No path
+for ``no_path_steps``: the virtual obstacles are forgotten (they may close a door); if there
+are none, the field plans for a thinner robot (``tight_radius``, at ``tight_speed``) for
+``tight_steps``; after that, back up and turn.
+
+Map hygiene, every tick: unseen cells within ``visited_clear_radius`` of the robot count as
+seen (frontiers in the camera's blind spots stop pulling the robot back and forth), and
+obstacle cells with a few hits that free space outvotes are forgotten (``noise_*``).
+Durations are in control steps and become ticks through ``plan_every``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import time
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from scipy import ndimage
+
+from vla_gr.core.field_map import FREE_HITS, OCC_HITS, points_to_cells
+from vla_gr.core.gr_field import GRField, GRFieldConfig
+from vla_gr.core.pure_pursuit import lookahead_target
+from vla_gr.geometry.camera import project_depth
+
+logger = logging.getLogger(__name__)
+
+MODES = ("look_around", "explore", "approach", "verify", "recover", "stop")
+
+
+@dataclass
+class NavigatorConfig:
+    """Thresholds of the S2 behaviour (metres, radians, ticks) and the GR field it owns."""
+
+    field: GRFieldConfig = field(default_factory=GRFieldConfig)
+    look_around_angle: float = 2.0 * math.pi  # turned in place at the start
+    turn_rate: float = 1.0  # fraction of the max angular speed for open-loop turns
+    pixel_threshold: float = 0.5  # goal likelihood for a pixel to vote for its cell
+    confirm_ticks: int = 2  # ticks with goal votes before a cell is a goal
+    min_goal_pixels: int = 3  # goal pixels for "the goal is in view now"
+    stop_distance: float = 0.8  # m from the robot centre to a confirmed goal cell
+    # at the end of the path (a goal in a corner: the stand-off is no nearer) this is enough
+    stop_distance_at_end: float = 0.9  # m
+    path_end_distance: float = 0.3  # m: the last waypoint this close means the path ends here
+    goal_halo_cells: int = 2  # occupied cells this close to goal cells do not block the view
+    plan_every: int = 1  # control steps per tick: the *_steps durations below become ticks
+    verify_steps: int = 12  # turning towards the goal before stopping anyway
+    blocked_steps: int = 15  # window of the blocked test (driving ahead, not moving)
+    blocked_distance: float = 0.1  # m
+    drive_bearing: float = math.radians(50.0)  # pursuit point within this: the plan drives
+    pursuit_lookahead: float = 0.6  # m, the follower's lookahead (for the drive test)
+    stuck_steps: int = 100  # window of the no-progress test
+    stuck_distance: float = 0.3  # m moved within the window below which the robot is stuck
+    recover_back_steps: int = 3  # backing up
+    recover_turn_steps: int = 6  # turning after backing up
+    recover_back_speed: float = 0.4  # fraction of the max linear speed, backwards
+    virtual_obstacle_distance: float = 0.3  # m ahead of the robot centre
+    virtual_obstacle_radius: float = 0.08  # m
+    virtual_obstacle_hits: float = 100.0  # evidence count (outvotes later free evidence)
+    no_path_steps: int = 8  # without a path before a recovery
+    # no path even without virtual obstacles: plan for a thinner robot for a while (passages
+    # the conservative inflation closes on a coarse map; the depth check still guards)
+    tight_radius: float = 0.05  # m
+    tight_steps: int = 150
+    tight_speed: float = 0.5  # cap of the linear fraction while planning for a thinner robot
+    # unseen cells this close to where the robot stands count as explored: frontiers in the
+    # camera's blind spots (under furniture, beside the base) cannot pull it back and forth
+    visited_clear_radius: float = 0.8  # m
+    # obstacle cells with at most noise_max_hits points but noise_free_ratio times as many
+    # free-space hits are mapping noise (grazing points of a door jamb): forgotten, so that
+    # one stray point never closes a door for good
+    noise_max_hits: float = 2.0
+    noise_free_ratio: float = 4.0
+
+    def __post_init__(self) -> None:
+        if isinstance(self.field, dict):
+            self.field = GRFieldConfig(**self.field)
+        for key in ("look_around_angle", "stop_distance", "stuck_distance", "blocked_distance",
+                    "stop_distance_at_end", "path_end_distance",
+                    "virtual_obstacle_radius", "virtual_obstacle_hits",
+                    "visited_clear_radius", "tight_radius"):  # fmt: skip
+            if not getattr(self, key) >= 0:
+                raise ValueError(f"navigator.{key}={getattr(self, key)} must be >= 0")
+        for key in ("confirm_ticks", "min_goal_pixels", "verify_steps", "stuck_steps",
+                    "blocked_steps", "no_path_steps", "plan_every", "tight_steps"):  # fmt: skip
+            if int(getattr(self, key)) < 1:
+                raise ValueError(f"navigator.{key}={getattr(self, key)} must be >= 1")
+        for key in ("recover_back_steps", "recover_turn_steps"):
+            if int(getattr(self, key)) < 0:
+                raise ValueError(f"navigator.{key}={getattr(self, key)} must be >= 0")
+        for key in ("turn_rate", "recover_back_speed", "pixel_threshold", "tight_speed"):
+            if not 0.0 < getattr(self, key) <= 1.0:
+                raise ValueError(f"navigator.{key}={getattr(self, key)} must be in (0, 1]")
+
+    def ticks(self, steps: int) -> int:
+        """Planner ticks covering ``steps`` control steps (at least 1 for steps > 0)."""
+        return math.ceil(steps / self.plan_every) if steps > 0 else 0
+
+
+@dataclass
+class NavPlan:
+    """One planner tick's output (batch 1)."""
+
+    waypoints: np.ndarray  # (K, 2) robot frame (forward, left) metres; (0, 2) when none
+    mode: str  # one of MODES
+    goal_confidence: float  # in [0, 1]: evidence for the committed (or best) goal cells
+    stop: bool  # STOP request
+    command: tuple[float, float] | None = None  # open-loop (v, w) fractions until the next tick
+    goal_distance: float = math.inf  # m from the robot to the nearest confirmed goal cell
+    max_speed: float = 1.0  # cap of the linear fraction the follower may use
+
+
+class Navigator:
+    """S2 behaviour on a batch-1 GR field (see module docstring)."""
+
+    def __init__(self, config: NavigatorConfig | None = None) -> None:
+        self.config = config or NavigatorConfig()
+        self.field = GRField(dataclasses.replace(self.config.field))  # its own copy
+        self.reset()
+
+    def reset(self) -> None:
+        """Start a new episode: empty map, no evidence, look around first."""
+        shape = self.field.grid.shape
+        self.field.reset()
+        self.goal_votes = np.zeros(shape, np.int32)  # (H, W) ticks with goal pixels per cell
+        self.mode = "look_around"
+        self.ticks = 0
+        self.turned = 0.0
+        self.last_yaw: float | None = None
+        self.positions: deque[np.ndarray] = deque(
+            maxlen=self.config.ticks(self.config.stuck_steps) + 1
+        )  # (2,) per driving tick
+        self.drives: deque[tuple[np.ndarray, bool]] = deque(
+            maxlen=self.config.ticks(self.config.blocked_steps) + 1
+        )  # ((2,), the plan drove ahead) per driving tick
+        self.virtual: list[torch.Tensor] = []  # (D, 2) cells of each virtual obstacle
+        self.field.config.robot_radius = self.config.field.robot_radius
+        self._radius = self.config.field.robot_radius  # the planning radius outside tight mode
+        self.tight_left = 0
+        self.unreachable_count = 0
+        self.recover_left = 0
+        self.verify_count = 0
+        self.no_path_count = 0
+        self.recoveries = 0
+        self.committed = False
+        self.ever_seen_goal = False
+        self.last_output = None
+        self.last_latency = 0.0
+
+    # ------------------------------------------------------------------ tick
+
+    def plan(self, obs: dict, goal_likelihood) -> NavPlan:
+        """One planner tick.
+
+        Args:
+            obs: ``depth`` (H, W, 1) or (H, W) metres and ``pose`` (3,) (a leading batch of 1
+                is accepted too).
+            goal_likelihood: (H, W) per-pixel probability in [0, 1] that the pixel shows the
+                instructed object.
+        """
+        t0 = time.perf_counter()
+        cfg = self.config
+        depth = torch.as_tensor(np.asarray(obs["depth"], np.float32)).reshape(
+            1, *np.shape(goal_likelihood)[-2:]
+        )  # (1, H, W)
+        pose = torch.as_tensor(np.asarray(obs["pose"], np.float32)).reshape(1, 3)  # (1, 3)
+        like = torch.as_tensor(np.asarray(goal_likelihood, np.float32)).reshape(depth.shape)
+        visible = self._vote(depth, pose, like)  # goal pixels in view now
+        confirmed = self.goal_votes >= cfg.confirm_ticks  # (H, W)
+        gate = torch.from_numpy(confirmed)[None]  # (1, H, W)
+        if self.tight_left > 0:
+            self.tight_left -= 1
+            if self.tight_left == 0:
+                self.field.config.robot_radius = self._radius
+        self.mark_visited(pose[0, :2].numpy(), cfg.visited_clear_radius)
+        self.forget_noise()
+        out = self.field.update({"depth": depth, "pose": pose}, like, goal_gate=gate)
+        self.last_output = out
+        maps = self.field.last_maps
+        goal_cells = maps["goal"][0].numpy()  # (H, W) confirmed goal cells
+        self.committed = bool(goal_cells.any())
+        robot_xy = maps["robot_xy"][0].numpy()  # (2,) from the grid corner
+        distance, nearest = self._goal_distance(goal_cells, robot_xy)
+        votes = float(self.goal_votes.max()) if self.goal_votes.any() else 0.0
+        confidence = min(1.0, votes / cfg.confirm_ticks)
+        p = pose[0].numpy().astype(np.float64)  # (3,)
+        plan = self._decide(out, p, robot_xy, visible, distance, nearest, maps)
+        plan.goal_confidence, plan.goal_distance = confidence, distance
+        plan.max_speed = cfg.tight_speed if self.tight_left > 0 else 1.0
+        self.mode = plan.mode
+        self.ticks += 1
+        self.last_latency = time.perf_counter() - t0
+        return plan
+
+    def _decide(self, out, pose, robot_xy, visible, distance, nearest, maps) -> NavPlan:
+        """The state machine: mode, waypoints / command and STOP for this tick."""
+        cfg = self.config
+        yaw = float(pose[2])
+        if self.last_yaw is not None:
+            self.turned += abs(_wrap(yaw - self.last_yaw))
+        self.last_yaw = yaw
+
+        looking = self.mode == "look_around" and not self.committed
+        if looking and self.turned < cfg.look_around_angle:
+            return self._command_plan("look_around", (0.0, cfg.turn_rate))
+        if self.recover_left > 0:
+            self.recover_left -= 1
+            backing = self.recover_left >= cfg.ticks(cfg.recover_turn_steps)
+            command = (-cfg.recover_back_speed, 0.0) if backing else (0.0, cfg.turn_rate)
+            return self._command_plan("recover", command)
+
+        at_end = bool(out.has_path[0]) and float(out.waypoints[0, -1].norm()) <= (
+            cfg.path_end_distance
+        )
+        near = distance <= (cfg.stop_distance_at_end if at_end else cfg.stop_distance)
+        if self.committed and near:
+            if visible or self.verify_count >= cfg.ticks(cfg.verify_steps):
+                return NavPlan(np.zeros((0, 2)), "stop", 0.0, True)
+            self.verify_count += 1
+            bearing = math.atan2(nearest[1] - robot_xy[1], nearest[0] - robot_xy[0])
+            turn = math.copysign(cfg.turn_rate, _wrap(bearing - yaw))
+            return self._command_plan("verify", (0.0, turn))
+        self.verify_count = 0
+
+        mode = "approach" if self.committed else "explore"
+        self.positions.append(pose[:2].copy())  # progress is judged while driving only
+        if self._blocked():
+            return self._start_recovery(pose, mark=True)
+        if self._stuck():
+            return self._start_recovery(pose, mark=False)
+        if not bool(out.has_path[0]):
+            self.drives.append((pose[:2].copy(), False))
+            self.no_path_count += 1
+            if self.no_path_count >= cfg.ticks(cfg.no_path_steps):
+                self.no_path_count = 0
+                if self.virtual:
+                    self.clear_virtual_obstacles()
+                elif self.tight_left == 0 and cfg.tight_radius < self._radius:
+                    self._start_tight()
+                else:
+                    return self._start_recovery(pose, mark=False)
+            return self._command_plan(mode, (0.0, cfg.turn_rate))
+        self.no_path_count = 0
+        # a confirmed goal the field cannot reach (it falls back to the frontier): the goal's
+        # stand-off may sit in a passage the conservative inflation closes; plan thinner
+        self.unreachable_count = (
+            self.unreachable_count + 1 if self.committed and not bool(out.goal_seen[0]) else 0
+        )
+        if self.unreachable_count >= cfg.ticks(cfg.no_path_steps) and self.tight_left == 0:
+            self._start_tight()
+        waypoints = out.waypoints[0].numpy().astype(np.float64)  # (K, 2)
+        target = lookahead_target(waypoints, cfg.pursuit_lookahead)  # (2,) robot frame
+        ahead = abs(math.atan2(target[1], target[0])) < cfg.drive_bearing
+        self.drives.append((pose[:2].copy(), bool(ahead and np.hypot(*target) > 0.2)))
+        return NavPlan(waypoints, mode, 0.0, False)
+
+    # ------------------------------------------------------------------ pieces
+
+    def _command_plan(self, mode: str, command: tuple[float, float]) -> NavPlan:
+        if mode in ("look_around", "recover", "verify"):
+            self.positions.clear()
+            self.drives.clear()
+        return NavPlan(np.zeros((0, 2)), mode, 0.0, False, command=command)
+
+    def _vote(self, depth, pose, like) -> bool:
+        """Add one vote to every cell goal pixels land in this tick; True if the goal is in view.
+
+        Args:
+            depth: (1, H, W); pose: (1, 3); like: (1, H, W).
+        """
+        cfg, fcfg = self.config, self.config.field
+        hits = (like >= cfg.pixel_threshold).reshape(1, -1)  # (1, N)
+        if not bool(hits.any()):
+            return False
+        points, valid = project_depth(
+            depth, fcfg.hfov_deg, pose, fcfg.camera_height, fcfg.camera_forward_offset,
+            fcfg.min_depth, fcfg.max_depth,
+        )  # (1, N, 3), (1, N)  # fmt: skip
+        keep = hits & valid  # (1, N)
+        cells, inside = points_to_cells(points[..., :2], self.field.grid)  # (1, N, 2), (1, N)
+        keep = keep & inside
+        visible = int(keep.sum()) >= cfg.min_goal_pixels
+        if bool(keep.any()):
+            rc = np.unique(cells[keep].numpy(), axis=0)  # (M, 2) distinct cells this tick
+            self.goal_votes[rc[:, 0], rc[:, 1]] += 1
+            self.ever_seen_goal = True
+        return visible
+
+    def _goal_distance(self, goal_cells: np.ndarray, robot_xy: np.ndarray):
+        """Distance (m) to the nearest goal cell centre in line of sight, and that centre (2,)."""
+        if not goal_cells.any():
+            return math.inf, None
+        h = self.field.config.cell_size
+        rows, cols = np.nonzero(goal_cells)
+        centres = (np.stack([cols, rows], axis=-1) + 0.5) * h  # (M, 2) x, y from the corner
+        dist = np.linalg.norm(centres - robot_xy, axis=-1)  # (M,)
+        near_goal = ndimage.binary_dilation(goal_cells, iterations=self.config.goal_halo_cells)
+        occupied = self.field.last_maps["occupied"][0].numpy() & ~near_goal  # (H, W)
+        for k in np.argsort(dist)[:8]:
+            if self._line_of_sight(robot_xy, centres[k], occupied):
+                return float(dist[k]), centres[k]
+        k = int(np.argmin(dist))
+        return math.inf, centres[k]
+
+    def _line_of_sight(self, a: np.ndarray, b: np.ndarray, occupied: np.ndarray) -> bool:
+        """No occupied (non-goal) cell on the segment a -> b (metric, from the grid corner)."""
+        h = self.field.config.cell_size
+        n = max(2, int(np.ceil(np.linalg.norm(b - a) / (0.5 * h))) + 1)
+        t = np.linspace(0.0, 1.0, n)[:, None]  # (n, 1)
+        rc = np.floor((a[None] * (1 - t) + b[None] * t)[:, ::-1] / h).astype(int)  # (n, 2)
+        return not occupied[rc[:, 0], rc[:, 1]].any()
+
+    def _stuck(self) -> bool:
+        """Moved less than stuck_distance over the last stuck_steps (window full)."""
+        cfg = self.config
+        if len(self.positions) <= cfg.ticks(cfg.stuck_steps):
+            return False
+        pts = np.stack(self.positions)  # (T, 2)
+        spread = np.linalg.norm(pts - pts[-1], axis=-1).max()
+        return bool(spread < cfg.stuck_distance)
+
+    def _start_tight(self) -> None:
+        """Plan for a robot of ``tight_radius`` for the next ``tight_steps``."""
+        self.unreachable_count = 0
+        if self.config.tight_radius < self._radius:
+            self.field.config.robot_radius = self.config.tight_radius
+            self.tight_left = self.config.ticks(self.config.tight_steps)
+
+    def _blocked(self) -> bool:
+        """The plan drove ahead on every tick of a full window, and the robot barely moved."""
+        cfg = self.config
+        if len(self.drives) <= cfg.ticks(cfg.blocked_steps):
+            return False
+        if not all(drive for _, drive in list(self.drives)[:-1]):
+            return False
+        pts = np.stack([xy for xy, _ in self.drives])  # (T, 2)
+        return bool(np.linalg.norm(pts - pts[-1], axis=-1).max() < cfg.blocked_distance)
+
+    def _start_recovery(self, pose: np.ndarray, mark: bool) -> NavPlan:
+        """(Mark a virtual obstacle ahead,) then back up and turn (Stubborn's untrap)."""
+        cfg = self.config
+        self.recoveries += 1
+        self.positions.clear()
+        self.drives.clear()
+        if mark:
+            heading = np.array([math.cos(pose[2]), math.sin(pose[2])])
+            centre = pose[:2] + cfg.virtual_obstacle_distance * heading  # (2,) map frame
+            self.mark_obstacle(centre, cfg.virtual_obstacle_radius)
+        self.recover_left = cfg.ticks(cfg.recover_back_steps) + cfg.ticks(cfg.recover_turn_steps)
+        logger.debug("navigator: stuck at %s, recovery %d", pose, self.recoveries)
+        if self.recover_left == 0:
+            return self._command_plan("recover", (0.0, 0.0))
+        self.recover_left -= 1
+        backing = self.recover_left >= cfg.ticks(cfg.recover_turn_steps)
+        command = (-cfg.recover_back_speed, 0.0) if backing else (0.0, cfg.turn_rate)
+        return self._command_plan("recover", command)
+
+    def _disk_cells(self, xy: np.ndarray, radius: float) -> torch.Tensor:
+        """Cells (D, 2) as (row, col) within ``radius`` of map-frame point ``xy`` (2,)."""
+        h = self.field.grid.cell_size
+        k = int(math.ceil(radius / h))
+        offs = np.arange(-k, k + 1) * h
+        dx, dy = np.meshgrid(offs, offs)
+        disk = dx**2 + dy**2 <= radius**2
+        pts = torch.tensor(np.stack([dx[disk], dy[disk]], -1) + xy, dtype=torch.float32)
+        cells, inside = points_to_cells(pts, self.field.grid)  # (D, 2), (D,)
+        return cells[inside]
+
+    def mark_obstacle(self, xy: np.ndarray, radius: float) -> None:
+        """Add obstacle evidence to the cells within ``radius`` of map-frame point ``xy`` (2,)."""
+        cells = self._disk_cells(xy, radius)  # (D, 2)
+        if self.field.map_state.shape[0] == 0 or len(cells) == 0:
+            return
+        self.field.map_state[0, OCC_HITS, cells[:, 0], cells[:, 1]] += (
+            self.config.virtual_obstacle_hits
+        )
+        self.virtual.append(cells)
+
+    def clear_virtual_obstacles(self) -> None:
+        """Take back the evidence of every virtual obstacle (seen obstacles stay)."""
+        occ = self.field.map_state[0, OCC_HITS]  # (H, W)
+        for cells in self.virtual:
+            occ[cells[:, 0], cells[:, 1]] -= self.config.virtual_obstacle_hits
+        occ.clamp_(min=0.0)
+        self.virtual.clear()
+
+    def forget_noise(self) -> None:
+        """Drop obstacle evidence that free-space evidence outvotes (see ``noise_*``)."""
+        if self.field.map_state.shape[0] == 0:
+            return
+        cfg, state = self.config, self.field.map_state[0]  # (4, H, W)
+        occ, free = state[OCC_HITS], state[FREE_HITS]  # (H, W) each
+        noise = (occ > 0) & (occ <= cfg.noise_max_hits) & (free >= cfg.noise_free_ratio * occ)
+        occ[noise] = 0.0
+
+    def mark_visited(self, xy: np.ndarray, radius: float) -> None:
+        """Count the unseen cells within ``radius`` of ``xy`` (2,) as seen free (one hit).
+
+        Obstacle evidence still wins over it, so a cell seen occupied stays occupied.
+        """
+        if radius <= 0 or self.field.map_state.shape[0] == 0:
+            return
+        cells = self._disk_cells(xy, radius)  # (D, 2)
+        state = self.field.map_state[0]  # (4, H, W)
+        seen = (state[:, cells[:, 0], cells[:, 1]] > 0).any(dim=0)  # (D,)
+        cells = cells[~seen]
+        state[FREE_HITS, cells[:, 0], cells[:, 1]] += 1.0
+
+
+def _wrap(angle: float) -> float:
+    """Wrap radians to (-pi, pi]."""
+    return math.pi - (math.pi - angle) % (2.0 * math.pi)

@@ -1,0 +1,248 @@
+"""Navigator (S2 behaviour) and pure-pursuit follower on synthetic depth and poses."""
+
+import math
+
+import numpy as np
+import pytest
+
+from vla_gr.core.gr_field import GRFieldConfig
+from vla_gr.core.navigator import Navigator, NavigatorConfig, NavPlan
+from vla_gr.core.pure_pursuit import (
+    PurePursuit,
+    PursuitConfig,
+    clearance_ahead,
+    lookahead_target,
+    pursuit_action,
+)
+from vla_gr.geometry.camera import intrinsics_from_hfov
+
+HFOV, CAM_H, N = 79.0, 0.88, 32
+ROOM = (-3.0, 3.0, -2.0, 2.0)  # x0, x1, y0, y1 of a box room around the start (m)
+
+
+def room_depth(pose, room=ROOM, n=N):
+    """Analytic z-depth (n, n, 1) of an axis-aligned box room with a floor seen from ``pose``."""
+    K = intrinsics_from_hfov(n, n, HFOV)
+    px, py, yaw = pose
+    a = np.arange(n) + 0.5
+    left = np.broadcast_to(-(a - K.cx) / K.fx, (n, n))
+    up = np.broadcast_to((-(a - K.cy) / K.fy)[:, None], (n, n))
+    dx, dy = np.cos(yaw) - np.sin(yaw) * left, np.sin(yaw) + np.cos(yaw) * left
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ts = [(room[0] - px) / dx, (room[1] - px) / dx, (room[2] - py) / dy, (room[3] - py) / dy]
+        ts.append(np.where(up < 0, CAM_H / -up, np.inf))
+    ts = np.stack([np.where(t > 1e-9, t, np.inf) for t in ts])
+    return ts.min(axis=0).astype(np.float32)[..., None]
+
+
+def wall_goal(depth):
+    """Likelihood (n, n): 1 on the central columns' wall pixels (not floor), else 0."""
+    n = depth.shape[0]
+    K = intrinsics_from_hfov(n, n, HFOV)
+    height = CAM_H - ((np.arange(n) + 0.5 - K.cy) / K.fy)[:, None] * depth[..., 0]  # (n, n)
+    like = np.zeros((n, n), np.float32)
+    cols = slice(n // 2 - 3, n // 2 + 3)
+    like[:, cols] = (height[:, cols] > 0.15).astype(np.float32)
+    return like
+
+
+def make_nav(**overrides) -> Navigator:
+    fcfg = GRFieldConfig(map_size=64, cell_size=0.15, ego_size=16)
+    return Navigator(NavigatorConfig(field=fcfg, **overrides))
+
+
+def tick(nav, pose, like=None):
+    depth = room_depth(pose)
+    if like is None:
+        like = np.zeros(depth.shape[:2], np.float32)
+    return nav.plan({"depth": depth, "pose": np.array(pose, np.float32)}, like)
+
+
+def test_look_around_turns_in_place_until_a_full_turn():
+    nav = make_nav()
+    yaw, modes = 0.0, []
+    for _ in range(80):
+        plan = tick(nav, (0.0, 0.0, yaw))
+        modes.append(plan.mode)
+        if plan.mode != "look_around":
+            break
+        assert plan.command is not None and plan.command[0] == 0.0 and plan.command[1] > 0
+        assert not plan.stop and len(plan.waypoints) == 0
+        yaw += 0.1 * plan.command[1]  # 1 rad/s at 10 Hz
+    n_look = modes.count("look_around")
+    assert n_look == math.ceil(2 * math.pi / 0.1)  # the tick that sees the full turn leaves
+    assert modes[-1] == "explore"
+
+
+def test_single_tick_false_positive_does_not_commit_but_repeated_evidence_does():
+    nav = make_nav(look_around_angle=0.0, confirm_ticks=2)
+    pose = (0.0, 0.0, 0.0)
+    like = wall_goal(room_depth(pose))
+    plan = tick(nav, pose, like)  # one tick of goal pixels
+    assert not nav.committed and plan.mode == "explore"
+    assert not nav.field.last_maps["goal"].any()  # the field plans to no goal
+    for _ in range(3):
+        plan = tick(nav, pose)  # the "goal" vanished
+    assert not nav.committed and plan.mode == "explore"
+    nav.reset()
+    nav.config.look_around_angle = 0.0
+    tick(nav, pose, like)
+    plan = tick(nav, pose, like)  # a second tick confirms
+    assert nav.committed and plan.mode == "approach"
+    assert plan.goal_confidence == 1.0 and len(plan.waypoints) > 0
+    assert plan.waypoints[0, 0] > 0  # heads towards the wall ahead
+
+
+def test_stop_only_when_the_confirmed_goal_is_within_stop_distance():
+    far, near = (0.0, 0.0, 0.0), (ROOM[1] - 0.6, 0.0, 0.0)  # 3 m and 0.6 m from the wall
+    nav = make_nav(look_around_angle=0.0, stop_distance=0.8)
+    for _ in range(3):
+        plan = tick(nav, far, wall_goal(room_depth(far)))
+        assert not plan.stop
+    assert plan.mode == "approach" and plan.goal_distance > 2.5
+    nav = make_nav(look_around_angle=0.0, stop_distance=0.8)
+    plan = tick(nav, near, wall_goal(room_depth(near)))
+    assert not plan.stop  # seen once: not yet confirmed
+    plan = tick(nav, near, wall_goal(room_depth(near)))
+    assert plan.stop and plan.mode == "stop" and plan.goal_distance <= 0.8
+    nav = make_nav(look_around_angle=0.0, stop_distance=0.8)
+    for _ in range(2):
+        tick(nav, near, wall_goal(room_depth(near)))
+    turned = (near[0], near[1], math.pi)  # confirmed, near, but looking away: verify first
+    plan = tick(nav, turned)
+    assert not plan.stop and plan.mode == "verify" and plan.command[0] == 0.0
+
+
+def test_blocked_fires_after_the_window_marks_an_obstacle_and_backs_up():
+    nav = make_nav(look_around_angle=0.0, blocked_steps=10, stuck_steps=1000)
+    pose = (0.0, 0.0, 0.0)
+    like = wall_goal(room_depth(pose))  # a goal straight ahead: the plan drives forward
+    modes = [tick(nav, pose, like).mode for _ in range(12)]
+    assert modes[:11] == ["explore"] + ["approach"] * 10  # confirmed at tick 2, window 10
+    assert modes[11] == "recover" and nav.recoveries == 1
+    plan = tick(nav, pose, like)
+    assert plan.mode == "recover" and plan.command[0] < 0.0  # backs up first
+    r, c = nav.field.grid.world_to_cell(np.array([0.3, 0.0]))
+    near = nav.field.map_state[0, 0, r - 1 : r + 2, c - 1 : c + 2]  # (3, 3) around the spot
+    assert near.max() >= nav.config.virtual_obstacle_hits  # a virtual obstacle in front
+    nav.clear_virtual_obstacles()
+    assert nav.field.map_state[0, 0, r - 1 : r + 2, c - 1 : c + 2].max() < 10
+
+
+def test_no_progress_fires_after_the_window_without_a_virtual_obstacle():
+    nav = make_nav(look_around_angle=0.0, stuck_steps=10, blocked_steps=1000)
+    pose = (0.0, 0.0, 0.0)
+    modes = [tick(nav, pose).mode for _ in range(12)]
+    assert modes[:10] == ["explore"] * 10  # window not full yet
+    assert modes[10] == "recover" and nav.recoveries == 1 and not nav.virtual
+    moving = make_nav(look_around_angle=0.0, stuck_steps=10, blocked_steps=1000)
+    modes = [tick(moving, (0.05 * k, 0.0, 0.0)).mode for k in range(12)]
+    assert "recover" not in modes  # 0.5 m in the window is progress
+
+
+def test_durations_scale_with_plan_every():
+    cfg = NavigatorConfig(plan_every=3, stuck_steps=40)
+    assert cfg.ticks(40) == 14 and cfg.ticks(0) == 0
+    with pytest.raises(ValueError, match="plan_every"):
+        NavigatorConfig(plan_every=0)
+    with pytest.raises(ValueError, match="stop_distance"):
+        NavigatorConfig(stop_distance=-1.0)
+
+
+def test_pursuit_turns_left_for_a_left_waypoint_and_drives_straight_ahead():
+    cfg = PursuitConfig()
+    v, w = pursuit_action(np.array([1.0, 0.5]), cfg)
+    assert w > 0 and v > 0
+    v, w = pursuit_action(np.array([1.0, -0.5]), cfg)
+    assert w < 0
+    v, w = pursuit_action(np.array([1.0, 0.0]), cfg)
+    assert v == pytest.approx(1.0) and w == pytest.approx(0.0)
+    v, w = pursuit_action(np.array([-1.0, 0.1]), cfg)  # behind: turn in place
+    assert v == 0.0 and w > 0
+    v, w = pursuit_action(np.array([1.0, 0.0]), cfg, clearance=cfg.stop_distance)
+    assert v == 0.0  # an obstacle at the stop distance ahead: no forward motion
+
+
+def test_pursuit_actions_stay_in_range():
+    rng = np.random.default_rng(0)
+    follower = PurePursuit()
+    depth = np.full((N, N, 1), 5.0, np.float32)
+    for _ in range(200):
+        wps = rng.normal(scale=3.0, size=(8, 2))
+        follower.set_plan(NavPlan(wps, "explore", 0.0, False), rng.normal(size=3))
+        a = follower.act(depth, rng.normal(size=3))
+        assert a.shape == (3,) and np.all(np.abs(a) <= 1.0) and a[2] < 0
+
+
+def test_follower_carries_waypoints_by_odometry_between_ticks():
+    follower = PurePursuit()
+    depth = room_depth((0.0, 0.0, 0.0), room=(-30, 30, -30, 30))
+    wps = np.array([[0.5 * k, 0.0] for k in range(1, 9)])  # straight ahead of the tick pose
+    follower.set_plan(NavPlan(wps, "explore", 0.0, False), np.zeros(3))
+    a = follower.act(depth, np.array([0.5, 0.0, 0.0]))  # moved along the path
+    assert a[0] > 0.9 and abs(a[1]) < 1e-6
+    a = follower.act(depth, np.array([0.5, 0.0, math.pi / 2]))  # turned left: path on the right
+    assert a[0] == 0.0 and a[1] < 0
+    follower.set_plan(NavPlan(np.zeros((0, 2)), "stop", 1.0, True), np.zeros(3))
+    assert follower.act(depth, np.zeros(3))[2] > 0
+
+
+def test_depth_clearance_sees_a_wall_ahead_and_ignores_the_floor():
+    cfg = PursuitConfig()
+    assert clearance_ahead(room_depth((0.0, 0.0, 0.0), room=(-9, 9, -9, 9)), cfg) > 8.0
+    wall = room_depth((ROOM[1] - 0.5, 0.0, 0.0))
+    assert clearance_ahead(wall, cfg) == pytest.approx(0.5, abs=1e-3)
+
+
+def test_lookahead_skips_passed_waypoints():
+    wps = np.array([[-1.0, 0.0], [0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
+    target = lookahead_target(wps, 0.6)
+    assert target == pytest.approx([0.6, 0.0])
+
+
+def test_noise_is_forgotten_but_real_obstacles_stay():
+    nav = make_nav(look_around_angle=0.0)
+    tick(nav, (0.0, 0.0, 0.0))
+    state = nav.field.map_state[0]  # (4, H, W)
+    state[:, 5, 5] = 0.0
+    state[0, 5, 5], state[1, 5, 5] = 1.0, 10.0  # one stray point in a cell seen free 10 times
+    state[:, 6, 6] = 0.0
+    state[0, 6, 6], state[1, 6, 6] = 5.0, 10.0  # a real obstacle seen repeatedly
+    nav.forget_noise()
+    assert state[0, 5, 5] == 0.0 and state[0, 6, 6] == 5.0
+
+
+def test_visited_cells_count_as_explored_without_hiding_obstacles():
+    nav = make_nav(look_around_angle=0.0)
+    tick(nav, (0.0, 0.0, 0.0))
+    state = nav.field.map_state[0]  # (4, H, W)
+    r, c = nav.field.grid.world_to_cell(np.array([-0.6, 0.0]))  # behind: never seen
+    assert state[:, r, c].sum() == 0
+    state[0, r + 1, c] = 3.0  # an obstacle seen beside it
+    nav.mark_visited(np.array([0.0, 0.0]), 0.8)
+    assert state[1, r, c] == 1.0 and state[1, r + 1, c] == 0.0
+
+
+def test_pursuit_turns_in_place_instead_of_arcing_into_a_near_obstacle():
+    cfg = PursuitConfig()
+    target = np.array([1.0, math.tan(math.radians(30.0))])  # 30 degrees left
+    v, w = pursuit_action(target, cfg, ahead=math.inf)
+    assert v > 0 and w > 0  # open space: an arc
+    v, w = pursuit_action(target, cfg, ahead=0.5 * (cfg.stop_distance + cfg.slow_distance))
+    assert v == 0.0 and w > 0  # a jamb ahead: turn first
+    wall = room_depth((ROOM[1] - 0.5, 0.0, 0.0))  # a wall 0.5 m ahead
+    a, half = math.radians(35.0), cfg.robot_radius + cfg.side_margin
+    expected = (0.5 - half * math.sin(a)) / math.cos(a)  # the corridor's edge meets the wall
+    assert clearance_ahead(wall, cfg, bearing=a) == pytest.approx(expected, abs=0.03)
+
+
+def test_tight_mode_plans_thinner_and_slower_then_restores_the_radius():
+    nav = make_nav(look_around_angle=0.0, tight_steps=3, tight_radius=0.05)
+    pose = (0.0, 0.0, 0.0)
+    assert tick(nav, pose).max_speed == 1.0
+    nav._start_tight()
+    assert nav.field.config.robot_radius == 0.05
+    assert nav.config.field.robot_radius == 0.18  # the configured radius is untouched
+    speeds = [tick(nav, pose).max_speed for _ in range(4)]
+    assert speeds[:2] == [nav.config.tight_speed] * 2 and speeds[-1] == 1.0
+    assert nav.field.config.robot_radius == 0.18
