@@ -21,6 +21,7 @@ from scipy import ndimage
 
 from vla_gr.envs.geodesic import sample_field
 from vla_gr.geometry import GridSpec, geodesic_distance
+from vla_gr.geometry.pose2d import wrap_angle
 from vla_gr.geometry.robot_spec import ROBOT_RADIUS
 
 logger = logging.getLogger(__name__)
@@ -42,11 +43,6 @@ _STEP_LEN = np.linalg.norm(_NEIGHBOURS, axis=1)  # (8,)
 
 
 # ----------------------------------------------------------------------------- pure pieces
-
-
-def wrap_angle(angle: float) -> float:
-    """Angle wrapped to [-pi, pi)."""
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def clearance_cost(

@@ -49,6 +49,7 @@ from vla_gr.envs.geodesic import sample_field, traversable_cells
 from vla_gr.envs.metrics import EpisodeMeasures
 from vla_gr.envs.rendering import RGBDRenderer, make_gl_context, tune_model_for_speed
 from vla_gr.envs.scene import House, ObjectInstance
+from vla_gr.geometry.pose2d import wrap_angle
 from vla_gr.geometry.robot_spec import MAX_ANGULAR_SPEED, MAX_LINEAR_SPEED
 
 logger = logging.getLogger(__name__)
@@ -238,7 +239,7 @@ class ObjectNavEnv(gym.Env):
         """World pose (3,) = (x, y, yaw) of the robot, yaw in (-pi, pi]."""
         scene = self._require_scene()
         pose = scene.data.qpos[scene.robot.qpos_adr].copy()  # (3,)
-        pose[2] = rb.wrap_angle(pose[2])
+        pose[2] = wrap_angle(pose[2])
         return pose
 
     # ------------------------------------------------------------------ gymnasium API

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from vla_gr.geometry.pose2d import wrap_angle
 from vla_gr.geometry.robot_spec import CAMERA_HEIGHT, HFOV_DEG, ROBOT_RADIUS
 
 BASE_HEIGHT = 1.0  # collision cylinder reaches above the camera, so table tops stop it
@@ -36,11 +37,6 @@ def vertical_fov_deg(hfov_deg: float, width: int, height: int) -> float:
         raise ValueError(f"image size must be positive, got width={width}, height={height}")
     half = math.radians(hfov_deg) / 2.0
     return math.degrees(2.0 * math.atan(math.tan(half) * height / width))
-
-
-def wrap_angle(angle):
-    """Wrap radians to (-pi, pi] (scalar or array)."""
-    return np.pi - np.mod(np.pi - np.asarray(angle, dtype=np.float64), 2.0 * np.pi)
 
 
 def relative_pose(pose_world: np.ndarray, origin_world: np.ndarray) -> np.ndarray:

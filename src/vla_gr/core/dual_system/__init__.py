@@ -3,7 +3,8 @@
 Data flow: :mod:`.config` (``DualSystemConfig``) -> :mod:`.planner` (``S2Planner``: latent
 goal + confidence) -> :mod:`.controller` (``S1Controller``: action) -> :mod:`.architecture`
 (``DualSystemArchitecture``: S2 every few S1 calls) -> :mod:`.runner` (the same schedule
-with S2 in a background thread, S1 never waiting).
+with S2 in a background thread, S1 never waiting). :mod:`.pure_pursuit` (``PurePursuit``)
+is the non-learned S1 that follows the GR-field navigator's waypoints.
 """
 
 from vla_gr.core.dual_system.architecture import (
@@ -14,6 +15,7 @@ from vla_gr.core.dual_system.architecture import (
 from vla_gr.core.dual_system.config import GATES, DualSystemConfig
 from vla_gr.core.dual_system.controller import S1Controller, gate_actions
 from vla_gr.core.dual_system.planner import S2Planner
+from vla_gr.core.dual_system.pure_pursuit import PurePursuit, PursuitConfig
 from vla_gr.core.dual_system.runner import DualSystemRunner, LatestSlot, Plan
 
 __all__ = [
@@ -23,6 +25,8 @@ __all__ = [
     "DualSystemRunner",
     "LatestSlot",
     "Plan",
+    "PurePursuit",
+    "PursuitConfig",
     "S1Controller",
     "S2Planner",
     "confidence_targets",

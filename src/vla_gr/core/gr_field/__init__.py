@@ -4,10 +4,13 @@ Data flow: :mod:`.config` (``GRFieldConfig``, feature channels) -> :mod:`.mappin
 (depth -> allocentric evidence map) -> :mod:`.physics` (masses, potential, metric,
 geodesics; pure maths) -> :mod:`.planning` (``GRField``: one update per planner tick,
 waypoints and egocentric features) -> :mod:`.picture` (top-down image for reports).
+:mod:`.navigator` (``Navigator``) is S2's behaviour on the field: look around, explore,
+approach, verify, recover, stop.
 """
 
 from vla_gr.core.gr_field.config import FEATURE_NAMES, GRFieldConfig
 from vla_gr.core.gr_field.mapping import update_map
+from vla_gr.core.gr_field.navigator import MODES, Navigator, NavigatorConfig, NavPlan
 from vla_gr.core.gr_field.physics import christoffel_conformal, integrate_geodesic, solve_poisson
 from vla_gr.core.gr_field.picture import render_field
 from vla_gr.core.gr_field.planning import GRField, GRFieldOutput, snap_start
@@ -17,6 +20,10 @@ __all__ = [
     "GRField",
     "GRFieldConfig",
     "GRFieldOutput",
+    "MODES",
+    "NavPlan",
+    "Navigator",
+    "NavigatorConfig",
     "christoffel_conformal",
     "integrate_geodesic",
     "render_field",

@@ -39,16 +39,17 @@ import logging
 import math
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 from scipy import ndimage
 
-from vla_gr.core.field_map import FREE_HITS, OCC_HITS, points_to_cells
-from vla_gr.core.gr_field import GRField, GRFieldConfig
-from vla_gr.core.pure_pursuit import lookahead_target
+from vla_gr.core.gr_field.config import GRFieldConfig
+from vla_gr.core.gr_field.mapping import FREE_HITS, OCC_HITS, points_to_cells
+from vla_gr.core.gr_field.planning import GRField
 from vla_gr.geometry.camera import project_depth
+from vla_gr.geometry.pose2d import lookahead_target, wrap_angle
 
 logger = logging.getLogger(__name__)
 
@@ -57,9 +58,8 @@ MODES = ("look_around", "explore", "approach", "verify", "recover", "stop")
 
 @dataclass
 class NavigatorConfig:
-    """Thresholds of the S2 behaviour (metres, radians, ticks) and the GR field it owns."""
+    """Thresholds of the S2 behaviour (metres, radians, ticks); the field has its own config."""
 
-    field: GRFieldConfig = field(default_factory=GRFieldConfig)
     look_around_angle: float = 2.0 * math.pi  # turned in place at the start
     turn_rate: float = 1.0  # fraction of the max angular speed for open-loop turns
     pixel_threshold: float = 0.5  # goal likelihood for a pixel to vote for its cell
@@ -100,8 +100,6 @@ class NavigatorConfig:
     noise_free_ratio: float = 4.0
 
     def __post_init__(self) -> None:
-        if isinstance(self.field, dict):
-            self.field = GRFieldConfig(**self.field)
         for key in ("look_around_angle", "stop_distance", "stuck_distance", "blocked_distance",
                     "stop_distance_at_end", "path_end_distance",
                     "virtual_obstacle_radius", "virtual_obstacle_hits",
@@ -140,9 +138,12 @@ class NavPlan:
 class Navigator:
     """S2 behaviour on a batch-1 GR field (see module docstring)."""
 
-    def __init__(self, config: NavigatorConfig | None = None) -> None:
+    def __init__(
+        self, config: NavigatorConfig | None = None, field_config: GRFieldConfig | None = None
+    ) -> None:
         self.config = config or NavigatorConfig()
-        self.field = GRField(dataclasses.replace(self.config.field))  # its own copy
+        self.field_config = field_config or GRFieldConfig()
+        self.field = GRField(dataclasses.replace(self.field_config))  # its own copy
         self.reset()
 
     def reset(self) -> None:
@@ -161,8 +162,8 @@ class Navigator:
             maxlen=self.config.ticks(self.config.blocked_steps) + 1
         )  # ((2,), the plan drove ahead) per driving tick
         self.virtual: list[torch.Tensor] = []  # (D, 2) cells of each virtual obstacle
-        self.field.config.robot_radius = self.config.field.robot_radius
-        self._radius = self.config.field.robot_radius  # the planning radius outside tight mode
+        self.field.config.robot_radius = self.field_config.robot_radius
+        self._radius = self.field_config.robot_radius  # the planning radius outside tight mode
         self.tight_left = 0
         self.unreachable_count = 0
         self.recover_left = 0
@@ -224,7 +225,7 @@ class Navigator:
         cfg = self.config
         yaw = float(pose[2])
         if self.last_yaw is not None:
-            self.turned += abs(_wrap(yaw - self.last_yaw))
+            self.turned += abs(wrap_angle(yaw - self.last_yaw))
         self.last_yaw = yaw
 
         looking = self.mode == "look_around" and not self.committed
@@ -245,7 +246,7 @@ class Navigator:
                 return NavPlan(np.zeros((0, 2)), "stop", 0.0, True)
             self.verify_count += 1
             bearing = math.atan2(nearest[1] - robot_xy[1], nearest[0] - robot_xy[0])
-            turn = math.copysign(cfg.turn_rate, _wrap(bearing - yaw))
+            turn = math.copysign(cfg.turn_rate, wrap_angle(bearing - yaw))
             return self._command_plan("verify", (0.0, turn))
         self.verify_count = 0
 
@@ -295,7 +296,7 @@ class Navigator:
         Args:
             depth: (1, H, W); pose: (1, 3); like: (1, H, W).
         """
-        cfg, fcfg = self.config, self.config.field
+        cfg, fcfg = self.config, self.field_config
         hits = (like >= cfg.pixel_threshold).reshape(1, -1)  # (1, N)
         if not bool(hits.any()):
             return False
@@ -432,8 +433,3 @@ class Navigator:
         seen = (state[:, cells[:, 0], cells[:, 1]] > 0).any(dim=0)  # (D,)
         cells = cells[~seen]
         state[FREE_HITS, cells[:, 0], cells[:, 1]] += 1.0
-
-
-def _wrap(angle: float) -> float:
-    """Wrap radians to (-pi, pi]."""
-    return math.pi - (math.pi - angle) % (2.0 * math.pi)

@@ -5,16 +5,16 @@ import math
 import numpy as np
 import pytest
 
-from vla_gr.core.gr_field import GRFieldConfig
-from vla_gr.core.navigator import Navigator, NavigatorConfig, NavPlan
-from vla_gr.core.pure_pursuit import (
+from vla_gr.core.dual_system.pure_pursuit import (
     PurePursuit,
     PursuitConfig,
     clearance_ahead,
-    lookahead_target,
     pursuit_action,
 )
+from vla_gr.core.gr_field import GRFieldConfig
+from vla_gr.core.gr_field.navigator import Navigator, NavigatorConfig, NavPlan
 from vla_gr.geometry.camera import intrinsics_from_hfov
+from vla_gr.geometry.pose2d import lookahead_target
 
 HFOV, CAM_H, N = 79.0, 0.88, 32
 ROOM = (-3.0, 3.0, -2.0, 2.0)  # x0, x1, y0, y1 of a box room around the start (m)
@@ -48,7 +48,7 @@ def wall_goal(depth):
 
 def make_nav(**overrides) -> Navigator:
     fcfg = GRFieldConfig(map_size=64, cell_size=0.15, ego_size=16)
-    return Navigator(NavigatorConfig(field=fcfg, **overrides))
+    return Navigator(NavigatorConfig(**overrides), fcfg)
 
 
 def tick(nav, pose, like=None):
@@ -242,7 +242,7 @@ def test_tight_mode_plans_thinner_and_slower_then_restores_the_radius():
     assert tick(nav, pose).max_speed == 1.0
     nav._start_tight()
     assert nav.field.config.robot_radius == 0.05
-    assert nav.config.field.robot_radius == 0.18  # the configured radius is untouched
+    assert nav.field_config.robot_radius == 0.18  # the configured radius is untouched
     speeds = [tick(nav, pose).max_speed for _ in range(4)]
     assert speeds[:2] == [nav.config.tight_speed] * 2 and speeds[-1] == 1.0
     assert nav.field.config.robot_radius == 0.18

@@ -17,14 +17,23 @@ from dataclasses import dataclass
 import numpy as np
 
 from vla_gr.geometry.camera import intrinsics_from_hfov
+from vla_gr.geometry.pose2d import lookahead_target, map_to_robot, robot_to_map
+from vla_gr.geometry.robot_spec import (
+    CAMERA_HEIGHT,
+    HFOV_DEG,
+    MAX_ANGULAR_SPEED,
+    MAX_LINEAR_SPEED,
+    MIN_DEPTH,
+    ROBOT_RADIUS,
+)
 
 
 @dataclass(frozen=True)
 class PursuitConfig:
     """Speeds (from the robot spec), pursuit geometry and the depth safety check."""
 
-    max_linear_speed: float = 0.5  # m/s at v = 1 (the env's MAX_LINEAR_SPEED)
-    max_angular_speed: float = 1.0  # rad/s at w = 1 (the env's MAX_ANGULAR_SPEED)
+    max_linear_speed: float = MAX_LINEAR_SPEED  # m/s at v = 1
+    max_angular_speed: float = MAX_ANGULAR_SPEED  # rad/s at w = 1
     lookahead: float = 0.6  # m: the pursued point's distance along the waypoints
     arrive_distance: float = 0.15  # m: the last waypoint closer than this is reached
     turn_in_place: float = math.radians(50.0)  # |heading error| above this: turn in place
@@ -36,15 +45,15 @@ class PursuitConfig:
     max_linear: float = 1.0  # cap of the linear fraction
     # depth safety: the corridor ahead (robot width + margin) must be clear of points in the
     # obstacle height band; speed falls linearly from slow_distance to stop_distance
-    robot_radius: float = 0.18
+    robot_radius: float = ROBOT_RADIUS
     side_margin: float = 0.05
     stop_distance: float = 0.25  # m from the robot centre to the nearest point ahead
     slow_distance: float = 0.8
     floor_height: float = 0.1
     robot_height: float = 1.2
-    camera_height: float = 0.88
-    hfov_deg: float = 79.0
-    min_depth: float = 0.05
+    camera_height: float = CAMERA_HEIGHT
+    hfov_deg: float = HFOV_DEG
+    min_depth: float = MIN_DEPTH
 
     def __post_init__(self) -> None:
         for key in (
@@ -65,45 +74,6 @@ class PursuitConfig:
             )
         if not self.floor_height < self.robot_height:
             raise ValueError("pursuit.floor_height must be < robot_height")
-
-
-def wrap(angle: float) -> float:
-    """Wrap radians to (-pi, pi]."""
-    return math.pi - (math.pi - angle) % (2.0 * math.pi)
-
-
-def to_world(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
-    """Robot-frame points (N, 2) (forward, left) at ``pose`` (3,) -> map-frame (N, 2)."""
-    c, s = math.cos(pose[2]), math.sin(pose[2])
-    x = pose[0] + c * points[:, 0] - s * points[:, 1]  # (N,)
-    y = pose[1] + s * points[:, 0] + c * points[:, 1]  # (N,)
-    return np.stack([x, y], axis=-1)
-
-
-def to_robot(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
-    """Map-frame points (N, 2) -> robot frame (N, 2) at ``pose`` (3,)."""
-    c, s = math.cos(pose[2]), math.sin(pose[2])
-    dx, dy = points[:, 0] - pose[0], points[:, 1] - pose[1]  # (N,)
-    return np.stack([c * dx + s * dy, -s * dx + c * dy], axis=-1)
-
-
-def lookahead_target(waypoints: np.ndarray, lookahead: float) -> np.ndarray:
-    """Point (2,) at arc length ``lookahead`` along the polyline robot -> ``waypoints`` (K, 2).
-
-    The polyline starts at the point of it nearest to the robot (waypoints already passed
-    are skipped); the last waypoint when the polyline is shorter.
-    """
-    pts = np.concatenate([np.zeros((1, 2)), waypoints])  # (K + 1, 2) robot frame
-    seg = pts[1:] - pts[:-1]  # (K, 2)
-    length = np.maximum((seg**2).sum(-1), 1e-12)  # (K,)
-    t = np.clip(-(pts[:-1] * seg).sum(-1) / length, 0.0, 1.0)  # (K,) projection of the robot
-    foot = pts[:-1] + t[:, None] * seg  # (K, 2)
-    d2 = (foot**2).sum(-1)  # (K,)
-    k = int(np.nonzero(d2 <= d2.min() + 1e-9)[0][-1])  # ties: the latest segment
-    path = np.concatenate([foot[k : k + 1], pts[k + 1 :]])  # (M, 2) from the nearest point
-    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
-    s = min(lookahead, float(arc[-1]))
-    return np.array([np.interp(s, arc, path[:, 0]), np.interp(s, arc, path[:, 1])])
 
 
 def clearance_ahead(depth: np.ndarray, cfg: PursuitConfig, bearing: float = 0.0) -> float:
@@ -192,7 +162,7 @@ class PurePursuit:
         self._max_speed = float(getattr(plan, "max_speed", 1.0))
         self._command = None if plan.command is None else tuple(plan.command)
         wps = np.asarray(plan.waypoints, dtype=np.float64).reshape(-1, 2)  # (K, 2)
-        self._world = to_world(wps, pose) if len(wps) else None  # (K, 2)
+        self._world = robot_to_map(wps, pose) if len(wps) else None  # (K, 2)
 
     def act(self, depth, pose) -> np.ndarray:
         """Action (3,) float32 = (v, w, stop) in [-1, 1] for depth (H, W[, 1]) and pose (3,)."""
@@ -209,7 +179,7 @@ class PurePursuit:
             return np.array([np.clip(v, -1, 1), np.clip(w, -1, 1), -1.0], np.float32)
         if self._world is None:
             return np.array([0.0, 0.0, -1.0], np.float32)
-        ego = to_robot(self._world, pose)  # (K, 2)
+        ego = map_to_robot(self._world, pose)  # (K, 2)
         if np.hypot(*ego[-1]) < cfg.arrive_distance:
             return np.array([0.0, 0.0, -1.0], np.float32)
         target = lookahead_target(ego, cfg.lookahead)  # (2,)
