@@ -73,7 +73,7 @@ def run_episodes(indices, split, image_size, plan_every, max_steps, pictures) ->
     torch.set_num_threads(1)
     env = gym.make("VLAGR/ObjectNav-v0", split=split, image_size=image_size, semantic=True,
                    max_episode_steps=max_steps)  # fmt: skip
-    nav, follower = Navigator(NavigatorConfig(plan_every=plan_every)), PurePursuit()
+    nav, follower = Navigator(NavigatorConfig(), plan_every=plan_every), PurePursuit()
     records = []
     try:
         for k in indices:

@@ -141,10 +141,11 @@ def test_no_progress_fires_after_the_window_without_a_virtual_obstacle():
 
 
 def test_durations_scale_with_plan_every():
-    cfg = NavigatorConfig(plan_every=3, stuck_steps=40)
-    assert cfg.ticks(40) == 14 and cfg.ticks(0) == 0
+    nav = Navigator(NavigatorConfig(stuck_steps=40), plan_every=3)
+    assert nav.steps_to_ticks(40) == 14 and nav.steps_to_ticks(0) == 0
+    assert nav.positions.maxlen == 15  # the stuck window in ticks, plus the current one
     with pytest.raises(ValueError, match="plan_every"):
-        NavigatorConfig(plan_every=0)
+        Navigator(plan_every=0)
     with pytest.raises(ValueError, match="stop_distance"):
         NavigatorConfig(stop_distance=-1.0)
 

@@ -70,7 +70,6 @@ class NavigatorConfig:
     stop_distance_at_end: float = 0.9  # m
     path_end_distance: float = 0.3  # m: the last waypoint this close means the path ends here
     goal_halo_cells: int = 2  # occupied cells this close to goal cells do not block the view
-    plan_every: int = 1  # control steps per tick: the *_steps durations below become ticks
     verify_steps: int = 12  # turning towards the goal before stopping anyway
     blocked_steps: int = 15  # window of the blocked test (driving ahead, not moving)
     blocked_distance: float = 0.1  # m
@@ -107,7 +106,7 @@ class NavigatorConfig:
             if not getattr(self, key) >= 0:
                 raise ValueError(f"navigator.{key}={getattr(self, key)} must be >= 0")
         for key in ("confirm_ticks", "min_goal_pixels", "verify_steps", "stuck_steps",
-                    "blocked_steps", "no_path_steps", "plan_every", "tight_steps"):  # fmt: skip
+                    "blocked_steps", "no_path_steps", "tight_steps"):  # fmt: skip
             if int(getattr(self, key)) < 1:
                 raise ValueError(f"navigator.{key}={getattr(self, key)} must be >= 1")
         for key in ("recover_back_steps", "recover_turn_steps"):
@@ -117,9 +116,6 @@ class NavigatorConfig:
             if not 0.0 < getattr(self, key) <= 1.0:
                 raise ValueError(f"navigator.{key}={getattr(self, key)} must be in (0, 1]")
 
-    def ticks(self, steps: int) -> int:
-        """Planner ticks covering ``steps`` control steps (at least 1 for steps > 0)."""
-        return math.ceil(steps / self.plan_every) if steps > 0 else 0
 
 
 @dataclass
@@ -139,12 +135,22 @@ class Navigator:
     """S2 behaviour on a batch-1 GR field (see module docstring)."""
 
     def __init__(
-        self, config: NavigatorConfig | None = None, field_config: GRFieldConfig | None = None
+        self,
+        config: NavigatorConfig | None = None,
+        field_config: GRFieldConfig | None = None,
+        plan_every: int = 1,
     ) -> None:
+        if int(plan_every) < 1:
+            raise ValueError(f"plan_every={plan_every} must be >= 1 (control steps per tick)")
+        self.plan_every = int(plan_every)  # the *_steps durations of the config become ticks
         self.config = config or NavigatorConfig()
         self.field_config = field_config or GRFieldConfig()
         self.field = GRField(dataclasses.replace(self.field_config))  # its own copy
         self.reset()
+
+    def steps_to_ticks(self, steps: int) -> int:
+        """Planner ticks covering ``steps`` control steps (at least 1 for steps > 0)."""
+        return math.ceil(steps / self.plan_every) if steps > 0 else 0
 
     def reset(self) -> None:
         """Start a new episode: empty map, no evidence, look around first."""
@@ -156,10 +162,10 @@ class Navigator:
         self.turned = 0.0
         self.last_yaw: float | None = None
         self.positions: deque[np.ndarray] = deque(
-            maxlen=self.config.ticks(self.config.stuck_steps) + 1
+            maxlen=self.steps_to_ticks(self.config.stuck_steps) + 1
         )  # (2,) per driving tick
         self.drives: deque[tuple[np.ndarray, bool]] = deque(
-            maxlen=self.config.ticks(self.config.blocked_steps) + 1
+            maxlen=self.steps_to_ticks(self.config.blocked_steps) + 1
         )  # ((2,), the plan drove ahead) per driving tick
         self.virtual: list[torch.Tensor] = []  # (D, 2) cells of each virtual obstacle
         self.field.config.robot_radius = self.field_config.robot_radius
@@ -233,7 +239,7 @@ class Navigator:
             return self._command_plan("look_around", (0.0, cfg.turn_rate))
         if self.recover_left > 0:
             self.recover_left -= 1
-            backing = self.recover_left >= cfg.ticks(cfg.recover_turn_steps)
+            backing = self.recover_left >= self.steps_to_ticks(cfg.recover_turn_steps)
             command = (-cfg.recover_back_speed, 0.0) if backing else (0.0, cfg.turn_rate)
             return self._command_plan("recover", command)
 
@@ -242,7 +248,7 @@ class Navigator:
         )
         near = distance <= (cfg.stop_distance_at_end if at_end else cfg.stop_distance)
         if self.committed and near:
-            if visible or self.verify_count >= cfg.ticks(cfg.verify_steps):
+            if visible or self.verify_count >= self.steps_to_ticks(cfg.verify_steps):
                 return NavPlan(np.zeros((0, 2)), "stop", 0.0, True)
             self.verify_count += 1
             bearing = math.atan2(nearest[1] - robot_xy[1], nearest[0] - robot_xy[0])
@@ -259,7 +265,7 @@ class Navigator:
         if not bool(out.has_path[0]):
             self.drives.append((pose[:2].copy(), False))
             self.no_path_count += 1
-            if self.no_path_count >= cfg.ticks(cfg.no_path_steps):
+            if self.no_path_count >= self.steps_to_ticks(cfg.no_path_steps):
                 self.no_path_count = 0
                 if self.virtual:
                     self.clear_virtual_obstacles()
@@ -274,7 +280,7 @@ class Navigator:
         self.unreachable_count = (
             self.unreachable_count + 1 if self.committed and not bool(out.goal_seen[0]) else 0
         )
-        if self.unreachable_count >= cfg.ticks(cfg.no_path_steps) and self.tight_left == 0:
+        if self.unreachable_count >= self.steps_to_ticks(cfg.no_path_steps) and self.tight_left == 0:
             self._start_tight()
         waypoints = out.waypoints[0].numpy().astype(np.float64)  # (K, 2)
         target = lookahead_target(waypoints, cfg.pursuit_lookahead)  # (2,) robot frame
@@ -341,7 +347,7 @@ class Navigator:
     def _stuck(self) -> bool:
         """Moved less than stuck_distance over the last stuck_steps (window full)."""
         cfg = self.config
-        if len(self.positions) <= cfg.ticks(cfg.stuck_steps):
+        if len(self.positions) <= self.steps_to_ticks(cfg.stuck_steps):
             return False
         pts = np.stack(self.positions)  # (T, 2)
         spread = np.linalg.norm(pts - pts[-1], axis=-1).max()
@@ -352,12 +358,12 @@ class Navigator:
         self.unreachable_count = 0
         if self.config.tight_radius < self._radius:
             self.field.config.robot_radius = self.config.tight_radius
-            self.tight_left = self.config.ticks(self.config.tight_steps)
+            self.tight_left = self.steps_to_ticks(self.config.tight_steps)
 
     def _blocked(self) -> bool:
         """The plan drove ahead on every tick of a full window, and the robot barely moved."""
         cfg = self.config
-        if len(self.drives) <= cfg.ticks(cfg.blocked_steps):
+        if len(self.drives) <= self.steps_to_ticks(cfg.blocked_steps):
             return False
         if not all(drive for _, drive in list(self.drives)[:-1]):
             return False
@@ -374,12 +380,12 @@ class Navigator:
             heading = np.array([math.cos(pose[2]), math.sin(pose[2])])
             centre = pose[:2] + cfg.virtual_obstacle_distance * heading  # (2,) map frame
             self.mark_obstacle(centre, cfg.virtual_obstacle_radius)
-        self.recover_left = cfg.ticks(cfg.recover_back_steps) + cfg.ticks(cfg.recover_turn_steps)
+        self.recover_left = self.steps_to_ticks(cfg.recover_back_steps) + self.steps_to_ticks(cfg.recover_turn_steps)
         logger.debug("navigator: stuck at %s, recovery %d", pose, self.recoveries)
         if self.recover_left == 0:
             return self._command_plan("recover", (0.0, 0.0))
         self.recover_left -= 1
-        backing = self.recover_left >= cfg.ticks(cfg.recover_turn_steps)
+        backing = self.recover_left >= self.steps_to_ticks(cfg.recover_turn_steps)
         command = (-cfg.recover_back_speed, 0.0) if backing else (0.0, cfg.turn_rate)
         return self._command_plan("recover", command)
 
