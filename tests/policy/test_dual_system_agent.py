@@ -6,12 +6,14 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from safetensors.torch import load_file
 
 from tests.helpers import train_overrides
 from vla_gr.configs import ConfigError, load_config
+from vla_gr.core.gr_field import NavPlan
 from vla_gr.core.grounding import goal_head_loss
 from vla_gr.data.dataset import EpisodeWindowDataset
 from vla_gr.policy import VLAGRPolicy, make_fake_batch
@@ -54,18 +56,65 @@ def test_builds_only_the_goal_head_and_its_loss_is_the_last_frames():
     torch.testing.assert_close(model(changed)["loss"], out["loss"])
 
 
-def test_inference_is_left_to_the_s2_navigator():
-    model = _model()
-    obs = {
-        "rgb": torch.zeros(32, 32, 3, dtype=torch.uint8),
-        "depth": torch.ones(32, 32, 1),
-        "pose": torch.zeros(3),
+def _obs(pose=(0.0, 0.0, 0.0)) -> dict:
+    return {
+        "rgb": np.zeros((32, 32, 3), np.uint8),
+        "depth": np.full((32, 32, 1), 3.0, np.float32),
+        "pose": np.asarray(pose, np.float32),
         "instruction": "find the chair",
     }
-    with pytest.raises(RuntimeError, match="needs the S2 navigator"):
-        model.select_action(obs)
-    with pytest.raises(RuntimeError, match="needs the S2 navigator"):
-        model.predict_action_chunk(obs)
+
+
+def test_s2_runs_every_plan_every_steps_and_s1_every_step():
+    # 10 Hz control, 10/3 Hz planning -> an S2 tick every 3 control steps
+    model = _model(
+        "model.dual_system.control_frequency_hz=10", "model.dual_system.planning_frequency_hz=3.3"
+    )
+    system = model.dual_system
+    assert system.plan_every == 3
+    ticks = []
+    perceive = system.goal_likelihood
+    system.goal_likelihood = lambda obs: ticks.append(len(ticks)) or perceive(obs)
+    model.reset()
+    s2_steps = []
+    for t in range(8):
+        action = model.select_action(_obs())
+        assert action.shape == (1, 3) and action.abs().max() <= 1.0
+        assert "s1" in model.last_timings
+        if "s2" in model.last_timings:
+            s2_steps.append(t)
+    assert s2_steps == [0, 3, 6] and len(ticks) == 3
+    model.reset()  # a new episode plans at once
+    model.select_action(_obs())
+    assert len(ticks) == 4 and "s2" in model.last_timings
+    assert model.predict_action_chunk(_obs()).shape == (1, 1, 3)
+
+
+def test_s1_acts_on_the_latest_plan_between_ticks():
+    model = _model(
+        "model.dual_system.control_frequency_hz=10", "model.dual_system.planning_frequency_hz=5"
+    )
+    system = model.dual_system  # plan_every 2
+    plans = iter(
+        [
+            NavPlan(np.zeros((0, 2)), "look_around", 0.0, False, command=(0.0, 1.0)),
+            NavPlan(np.zeros((0, 2)), "stop", 1.0, True),
+        ]
+    )
+    system.navigator.plan = lambda obs, likelihood: next(plans)
+    model.reset()
+    first = [model.select_action(_obs())[0].tolist() for _ in range(2)]
+    assert first == [[0.0, 1.0, -1.0]] * 2  # the first plan's turn, held until the next tick
+    assert model.select_action(_obs())[0].tolist() == [0.0, 0.0, 1.0]  # the new plan: STOP
+    assert system.max_goal_confidence == 1.0
+
+
+def test_the_dual_system_runs_at_batch_one():
+    model = _model()
+    batch = {k: np.stack([v, v]) for k, v in _obs().items() if k != "instruction"}
+    batch["instruction"] = ["find the chair"] * 2
+    with pytest.raises(ValueError, match="batch 1"):
+        model.select_action(batch)
 
 
 def test_end_to_end_is_the_default_and_has_no_goal_head():

@@ -17,8 +17,10 @@ from dataclasses import dataclass, field, replace
 
 from vla_gr.core.diffusion_policy.config import HeadConfig
 from vla_gr.core.dual_system.config import DualSystemConfig
+from vla_gr.core.dual_system.pure_pursuit import PursuitConfig
 from vla_gr.core.encoders.config import EncodersConfig
 from vla_gr.core.gr_field.config import GRFieldConfig
+from vla_gr.core.gr_field.navigator import NavigatorConfig
 from vla_gr.core.grounding import GoalHeadConfig, GroundingConfig
 from vla_gr.validation import check_choice, check_positive
 
@@ -72,8 +74,10 @@ class ModelConfig:
     The fields in ``FOLLOWS`` (``head.action_dim``, ``head.horizon``, ``head.context_dim``,
     ``dual_system.action_dim``) follow the model's keys (set those); setting them to
     something else fails.
-    ``gr_field`` and ``dual_system`` configure components that ``VLAGRPolicy`` does not
-    compose yet.
+    ``model.agent=dual_system`` composes ``goal_head`` (S2's grounding), ``navigator`` on
+    ``gr_field`` (S2's plan) and ``pursuit`` (S1), scheduled by ``dual_system``'s
+    ``planning_frequency_hz`` / ``control_frequency_hz``; the end-to-end agent uses
+    ``encoders`` and ``head``.
     """
 
     # Observation / action layout (LeRobot names), shared with the training windows.
@@ -89,6 +93,8 @@ class ModelConfig:
     dual_system: DualSystemConfig = field(default_factory=DualSystemConfig)
     goal_head: GoalHeadConfig = field(default_factory=GoalHeadConfig)  # S2's grounding
     grounding: GroundingConfig = field(default_factory=GroundingConfig)  # its loss, metrics
+    navigator: NavigatorConfig = field(default_factory=NavigatorConfig)  # S2's behaviour
+    pursuit: PursuitConfig = field(default_factory=PursuitConfig)  # S1: waypoint follower
     freeze: list[str] = field(default_factory=list)  # submodules whose weights stay fixed
     peft: PeftConfig = field(default_factory=PeftConfig)
 

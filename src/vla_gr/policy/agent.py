@@ -36,9 +36,11 @@ from torch.utils.checkpoint import checkpoint
 from vla_gr.checkpoint import load_model_state, read_checkpoint
 from vla_gr.configs.model_schema import ModelConfig
 from vla_gr.core.diffusion_policy import DiffusionPolicy
+from vla_gr.core.dual_system import plan_interval
 from vla_gr.core.encoders import PoseEncoder, RGBDEncoder, build_text_encoder, pose_features
 from vla_gr.core.grounding import GoalHead, goal_head_loss, mask_confusion
 from vla_gr.core.trajectory_attention import TransformerBlock
+from vla_gr.policy.dual_system import GroundedDualSystem
 from vla_gr.policy.frames import apply_peft, as_instructions, env_obs_to_frame
 
 __all__ = ["VLAGRPolicy"]
@@ -54,8 +56,9 @@ class VLAGRPolicy(nn.Module):
     def __init__(self, config: ModelConfig) -> None:
         super().__init__()
         self.config = c = config
+        self.last_timings: dict[str, float] = {}  # seconds per part of the last decision
         if c.agent == "dual_system":
-            self.goal_head = GoalHead(c.goal_head)  # S2's grounding; S1 is not built yet
+            self._build_dual_system(c)
         else:
             self._build_end_to_end(c)
         # Min-max normalisers (identity until set_normalization); saved with the weights.
@@ -245,16 +248,52 @@ class VLAGRPolicy(nn.Module):
         )
 
     # ------------------------------------------------------------------ inference
+    def _build_dual_system(self, c: ModelConfig) -> None:
+        """S2's goal head (trained) + the navigator on the GR field and the S1 follower."""
+        self.goal_head = GoalHead(c.goal_head)
+        d = c.dual_system
+        self.dual_system = GroundedDualSystem(
+            self.goal_likelihood,
+            navigator=c.navigator,
+            field=c.gr_field,
+            pursuit=c.pursuit,
+            plan_every=plan_interval(d.control_frequency_hz, d.planning_frequency_hz),
+        )
+
+    @torch.no_grad()
+    def goal_likelihood(self, obs: Mapping) -> np.ndarray:
+        """S2's perception: (H, W) probability that each pixel shows the instructed object.
+
+        ``obs`` is one environment observation (``rgb`` (H, W, 3), ``depth`` (H, W, 1),
+        ``instruction`` str); a leading batch of one is accepted.
+        """
+        frame = env_obs_to_frame(obs, device=self.action_scale.device)
+        if frame["rgb"].shape[0] != 1:
+            raise ValueError(
+                f"the dual system runs at batch 1; got {frame['rgb'].shape[0]} observations"
+            )
+        pixels, visible = self.goal_head.likelihood(
+            frame["rgb"], frame["depth"], frame["instruction"]
+        )  # (1, H, W), (1,)
+        self.last_goal_visible = float(visible[0])
+        return pixels[0].float().cpu().numpy()  # (H, W)
+
     def _dual_system_step(self, obs: Mapping) -> torch.Tensor:
-        """One control step of the dual system: S2 (goal head -> GR field -> plan) every
-        ``plan_every`` steps, S1 every step -> action (B, A)."""
-        raise RuntimeError("dual_system inference needs the S2 navigator")
+        """One control step of the dual system (S2 every ``plan_every`` steps, S1 every step;
+        see :mod:`vla_gr.policy.dual_system`) -> action (1, A)."""
+        action = self.dual_system.step(_single_observation(obs))  # (A,)
+        self.last_timings = self.dual_system.last_timings
+        return torch.from_numpy(action).to(self.action_scale.device)[None]  # (1, A)
 
     @torch.no_grad()
     def predict_action_chunk(self, obs: Mapping) -> torch.Tensor:
-        """Raw actions ``(B, horizon, A)`` in ``[-1, 1]`` for a batch of observation histories."""
+        """Raw actions ``(B, horizon, A)`` in ``[-1, 1]`` for a batch of observation histories.
+
+        The dual system is stateful (its map) and its S1 follower decides one step at a time:
+        it takes one environment observation and returns a chunk of one, ``(1, 1, A)``.
+        """
         if self.has_goal_head:
-            return self._dual_system_step(obs)
+            return self._dual_system_step(obs)[:, None]  # (1, 1, A)
         context = self.encode_observations(obs)  # (B, S, D)
         chunk = self.head.get_action(context)  # (B, H, A), sampler and steps from model.head
         return self.unnormalize_action(chunk).clamp(-1.0, 1.0)  # (B, H, A)
@@ -263,6 +302,8 @@ class VLAGRPolicy(nn.Module):
         """Forget the observation history and the queued actions (call at episode start)."""
         self._obs_queue: deque[dict] = deque(maxlen=self.config.n_obs_steps)
         self._action_queue: deque[torch.Tensor] = deque(maxlen=self.config.n_action_steps)
+        if self.has_goal_head:
+            self.dual_system.reset()
 
     @torch.no_grad()
     def select_action(self, obs: Mapping) -> torch.Tensor:
@@ -298,3 +339,17 @@ class VLAGRPolicy(nn.Module):
             chunk = self.predict_action_chunk(history)  # (B, H, A)
             self._action_queue.extend(chunk[:, : self.config.n_action_steps].unbind(1))
         return self._action_queue.popleft()  # (B, A)
+
+
+def _single_observation(obs: Mapping) -> dict:
+    """One env observation (``rgb`` (H, W, 3), ...) from one with an optional batch of 1."""
+    rgb = np.asarray(obs["rgb"])
+    if rgb.ndim == 3:
+        return dict(obs)
+    if rgb.ndim != 4 or rgb.shape[0] != 1:
+        raise ValueError(
+            f"the dual system runs at batch 1; got obs['rgb'] of shape {tuple(rgb.shape)}"
+        )
+    single = {k: np.asarray(obs[k])[0] for k in _OBS_KEYS}
+    single["instruction"] = as_instructions(obs["instruction"], "obs['instruction']")[0]
+    return single

@@ -28,7 +28,7 @@ from vla_gr.geometry.robot_spec import (
 )
 
 
-@dataclass(frozen=True)
+@dataclass
 class PursuitConfig:
     """Speeds (from the robot spec), pursuit geometry and the depth safety check."""
 
@@ -61,19 +61,19 @@ class PursuitConfig:
             "heading_gain", "slow_distance", "hfov_deg", "camera_height",
         ):  # fmt: skip
             if not getattr(self, key) > 0:
-                raise ValueError(f"pursuit.{key}={getattr(self, key)} must be > 0")
+                raise ValueError(f"model.pursuit.{key}={getattr(self, key)} must be > 0")
         if not 0.0 < self.turn_in_place_near <= self.turn_in_place:
-            raise ValueError("pursuit.turn_in_place_near must be in (0, turn_in_place]")
+            raise ValueError("model.pursuit.turn_in_place_near must be in (0, turn_in_place]")
         if not 0.0 < self.turn_in_place <= math.pi:
-            raise ValueError(f"pursuit.turn_in_place={self.turn_in_place} must be in (0, pi]")
+            raise ValueError(f"model.pursuit.turn_in_place={self.turn_in_place} must be in (0, pi]")
         if not 0.0 <= self.min_turn <= 1.0 or not 0.0 < self.max_linear <= 1.0:
-            raise ValueError("pursuit.min_turn must be in [0, 1] and max_linear in (0, 1]")
+            raise ValueError("model.pursuit.min_turn must be in [0, 1] and max_linear in (0, 1]")
         if not 0.0 <= self.stop_distance < self.slow_distance:
             raise ValueError(
-                f"pursuit.stop_distance={self.stop_distance} must be in [0, slow_distance)"
+                f"model.pursuit.stop_distance={self.stop_distance} must be in [0, slow_distance)"
             )
         if not self.floor_height < self.robot_height:
-            raise ValueError("pursuit.floor_height must be < robot_height")
+            raise ValueError("model.pursuit.floor_height must be < robot_height")
 
 
 def clearance_ahead(depth: np.ndarray, cfg: PursuitConfig, bearing: float = 0.0) -> float:
@@ -138,7 +138,7 @@ def pursuit_action(
 
 
 class PurePursuit:
-    """Follows the latest plan of :class:`~vla_gr.core.navigator.Navigator` every control step.
+    """Follows the latest plan of :class:`~vla_gr.core.gr_field.Navigator` every control step.
 
     Usage: ``set_plan(plan, pose)`` after each planner tick, ``act(depth, pose)`` every step.
     """

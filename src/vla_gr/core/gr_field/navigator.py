@@ -104,18 +104,17 @@ class NavigatorConfig:
                     "virtual_obstacle_radius", "virtual_obstacle_hits",
                     "visited_clear_radius", "tight_radius"):  # fmt: skip
             if not getattr(self, key) >= 0:
-                raise ValueError(f"navigator.{key}={getattr(self, key)} must be >= 0")
+                raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 0")
         for key in ("confirm_ticks", "min_goal_pixels", "verify_steps", "stuck_steps",
                     "blocked_steps", "no_path_steps", "tight_steps"):  # fmt: skip
             if int(getattr(self, key)) < 1:
-                raise ValueError(f"navigator.{key}={getattr(self, key)} must be >= 1")
+                raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 1")
         for key in ("recover_back_steps", "recover_turn_steps"):
             if int(getattr(self, key)) < 0:
-                raise ValueError(f"navigator.{key}={getattr(self, key)} must be >= 0")
+                raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 0")
         for key in ("turn_rate", "recover_back_speed", "pixel_threshold", "tight_speed"):
             if not 0.0 < getattr(self, key) <= 1.0:
-                raise ValueError(f"navigator.{key}={getattr(self, key)} must be in (0, 1]")
-
+                raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be in (0, 1]")
 
 
 @dataclass
@@ -280,7 +279,10 @@ class Navigator:
         self.unreachable_count = (
             self.unreachable_count + 1 if self.committed and not bool(out.goal_seen[0]) else 0
         )
-        if self.unreachable_count >= self.steps_to_ticks(cfg.no_path_steps) and self.tight_left == 0:
+        if (
+            self.unreachable_count >= self.steps_to_ticks(cfg.no_path_steps)
+            and self.tight_left == 0
+        ):
             self._start_tight()
         waypoints = out.waypoints[0].numpy().astype(np.float64)  # (K, 2)
         target = lookahead_target(waypoints, cfg.pursuit_lookahead)  # (2,) robot frame
@@ -380,7 +382,9 @@ class Navigator:
             heading = np.array([math.cos(pose[2]), math.sin(pose[2])])
             centre = pose[:2] + cfg.virtual_obstacle_distance * heading  # (2,) map frame
             self.mark_obstacle(centre, cfg.virtual_obstacle_radius)
-        self.recover_left = self.steps_to_ticks(cfg.recover_back_steps) + self.steps_to_ticks(cfg.recover_turn_steps)
+        self.recover_left = self.steps_to_ticks(cfg.recover_back_steps) + self.steps_to_ticks(
+            cfg.recover_turn_steps
+        )
         logger.debug("navigator: stuck at %s, recovery %d", pose, self.recoveries)
         if self.recover_left == 0:
             return self._command_plan("recover", (0.0, 0.0))

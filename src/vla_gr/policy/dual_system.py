@@ -1,0 +1,90 @@
+"""The dual system at inference: S2 grounds the instruction and plans on the GR field, S1 drives.
+
+One control step of :class:`GroundedDualSystem` (batch 1, the env's observation)::
+
+    step     0    1    2    3    4    5    6  ...   (plan_every = 3; reset() -> step 0)
+    S2       X    .    .    X    .    .    X        goal likelihood -> Navigator.plan()
+    S1       X    X    X    X    X    X    X        PurePursuit.act() on the latest plan
+
+S2 = a goal-likelihood source (the learned goal head of
+:mod:`vla_gr.core.grounding`, or any callable; evaluation's privileged ablation passes the
+true mask) + :class:`~vla_gr.core.gr_field.Navigator` (map, masses, potential, metric,
+geodesic; look around, multi-tick confirmation, approach, verify, recover, stop). S1 =
+:class:`~vla_gr.core.dual_system.PurePursuit`, which carries the plan's waypoints into the
+current robot frame by odometry between ticks and checks depth for obstacles ahead. The
+schedule is :func:`~vla_gr.core.dual_system.plan_interval` of the configured S2 and S1 rates.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping
+
+import numpy as np
+
+from vla_gr.core.dual_system import PurePursuit, PursuitConfig
+from vla_gr.core.gr_field import GRFieldConfig, Navigator, NavigatorConfig, NavPlan
+
+__all__ = ["GoalLikelihood", "GroundedDualSystem"]
+
+#: ``(obs) -> (H, W)`` per-pixel probability that the pixel shows the instructed object.
+GoalLikelihood = Callable[[Mapping], np.ndarray]
+
+
+class GroundedDualSystem:
+    """S2 (goal likelihood + GR-field navigator) every ``plan_every`` steps, S1 every step.
+
+    Args:
+        goal_likelihood: the S2 perception, ``obs -> (H, W)`` in [0, 1].
+        navigator, field, pursuit: configs of the navigator, its GR field and the follower.
+        plan_every: control steps per S2 tick.
+    """
+
+    def __init__(
+        self,
+        goal_likelihood: GoalLikelihood,
+        navigator: NavigatorConfig | None = None,
+        field: GRFieldConfig | None = None,
+        pursuit: PursuitConfig | None = None,
+        plan_every: int = 1,
+    ) -> None:
+        self.goal_likelihood = goal_likelihood
+        self.navigator = Navigator(navigator, field, plan_every=plan_every)
+        self.follower = PurePursuit(pursuit)
+        self.plan_every = self.navigator.plan_every
+        #: seconds of the last step's parts: ``s1`` always, ``s2`` on planner ticks
+        self.last_timings: dict[str, float] = {}
+        self.reset()
+
+    def reset(self) -> None:
+        """New episode: empty map, no plan; the next step runs S2."""
+        self.navigator.reset()
+        self.follower.reset()
+        self.steps = 0
+        self.plan: NavPlan | None = None
+        self.last_likelihood: np.ndarray | None = None  # (H, W) of the last S2 tick
+        self.max_goal_confidence = 0.0
+
+    def step(self, obs: Mapping) -> np.ndarray:
+        """One control step on a single env observation -> action float32 (3,) (v, w, stop)."""
+        depth = np.asarray(obs["depth"], dtype=np.float32)  # (H, W, 1)
+        pose = np.asarray(obs["pose"], dtype=np.float64).reshape(3)  # (3,)
+        timings = {}
+        if self.steps % self.plan_every == 0:
+            t0 = time.perf_counter()
+            likelihood = np.asarray(self.goal_likelihood(obs), dtype=np.float32)  # (H, W)
+            if likelihood.shape != depth.shape[:2]:
+                raise ValueError(
+                    f"goal likelihood has shape {likelihood.shape}, expected {depth.shape[:2]}"
+                )
+            self.plan = self.navigator.plan({"depth": depth, "pose": pose}, likelihood)
+            self.follower.set_plan(self.plan, pose)
+            self.last_likelihood = likelihood
+            self.max_goal_confidence = max(self.max_goal_confidence, self.plan.goal_confidence)
+            timings["s2"] = time.perf_counter() - t0
+        t1 = time.perf_counter()
+        action = self.follower.act(depth, pose)  # (3,)
+        timings["s1"] = time.perf_counter() - t1
+        self.last_timings = timings
+        self.steps += 1
+        return action
