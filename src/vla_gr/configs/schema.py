@@ -33,9 +33,13 @@ class EnvConfig:
     num_rooms: int | None = None  # house size knob (None: the generator draws 2-5)
     clutter: float = 1.0  # furniture density knob of the house generator
     scene_cache_size: int = 4  # compiled houses kept per env (LRU)
+    depth_noise_std: float = 0.0  # robustness: Gaussian depth noise per pixel (m); 0 = off
+    actuation_noise: float = 0.0  # robustness: relative noise per step on v and w; 0 = off
 
     def __post_init__(self) -> None:
         check_choice("env.split", self.split, SPLITS)
+        check_positive("env.depth_noise_std", self.depth_noise_std, allow_zero=True)
+        check_positive("env.actuation_noise", self.actuation_noise, allow_zero=True)
         check_positive("env.max_depth", self.max_depth)
         if self.num_rooms is not None and not 1 <= self.num_rooms <= 6:
             raise ValueError(f"env.num_rooms={self.num_rooms} must be None or in [1, 6]")

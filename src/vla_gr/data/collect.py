@@ -33,6 +33,8 @@ def env_kwargs_from_config(cfg, split: str, semantic: bool = True) -> dict:
         "max_episode_steps": cfg.env.max_episode_steps,
         "success_distance": cfg.env.success_distance,
         "semantic": semantic,
+        "depth_noise_std": cfg.env.depth_noise_std,
+        "actuation_noise": cfg.env.actuation_noise,
     }
     if cfg.env.episodes:
         kwargs["episodes"] = cfg.env.episodes
