@@ -238,7 +238,7 @@ def evaluate(cfg, agent: str | None = None) -> dict:
                 done[row["episode_index"]] = row
                 successes += row["metrics"]["success"]
                 bar.update(1)
-                bar.set_postfix(SR=f"{successes / bar.n:.2f}")
+                bar.set_postfix(SR=f"{successes / len(done):.2f}")
     finally:
         writer.close()
     rows = [done[k] for k in indices]
@@ -292,6 +292,10 @@ def run_from_cli(config_name: str, overrides: Sequence[str]) -> int:
 
     try:
         _, cfg = load_config(config_name, expand_aliases(overrides))
+    except ValueError as err:  # a config value out of range: one line naming the key
+        log.error("%s", str(err).strip().splitlines()[0])
+        return 2
+    try:
         if cfg.eval.agents:
             table = compare(cfg)["table"]
         else:

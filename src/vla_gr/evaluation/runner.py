@@ -149,14 +149,23 @@ def run_episode(
 _WORKER: dict = {}
 
 
-def _init_worker(cfg, agent_name: str, env_kwargs: dict) -> None:
-    """Per-process env + agent, made once and reused for every episode of the worker."""
+def _init_worker(cfg, agent_name: str, env_kwargs: dict, warm_index: int) -> None:
+    """Per-process env + agent, made once and reused for every episode of the worker.
+
+    One untimed decision on episode ``warm_index`` first, so that lazy initialisation
+    (first kernels, caches) does not land in the latency of the first timed decision.
+    """
     from vla_gr.data.collect import make_env
     from vla_gr.evaluation.agents import make_agent
 
     torch.set_num_threads(1)
     env = make_env(env_kwargs)
-    _WORKER.update(env=env, agent=make_agent(agent_name, cfg, env), cfg=cfg)
+    agent = make_agent(agent_name, cfg, env)
+    obs, _ = env.reset(seed=int(warm_index))
+    agent.reset(0)
+    with torch.inference_mode():
+        agent.act(obs)
+    _WORKER.update(env=env, agent=agent, cfg=cfg)
 
 
 def _work(index: int) -> dict:
@@ -182,18 +191,19 @@ def iter_episode_rows(
         return
     if workers == 1 or len(indices) == 1:
         threads = torch.get_num_threads()
-        _init_worker(cfg, agent_name, env_kwargs)
-        torch.set_num_threads(threads)
+        _init_worker(cfg, agent_name, env_kwargs, indices[0])  # 1 thread, as in workers
         try:
             for index in indices:
                 yield _work(index)
         finally:
             _WORKER.pop("env").close()
             _WORKER.clear()
+            torch.set_num_threads(threads)
         return
     ctx = mp.get_context("spawn")
     n = min(workers, len(indices))
-    with ctx.Pool(n, initializer=_init_worker, initargs=(cfg, agent_name, env_kwargs)) as pool:
+    init_args = (cfg, agent_name, env_kwargs, indices[0])
+    with ctx.Pool(n, initializer=_init_worker, initargs=init_args) as pool:
         yield from pool.imap(_work, indices, chunksize=1)
 
 
