@@ -228,3 +228,56 @@ def test_bad_input_is_one_line_before_any_episode(tmp_path, caplog, checkpoint, 
     assert len(errors) == 1 and message in errors[0].getMessage()
     assert "\n" not in errors[0].getMessage()
     assert not out.exists()  # nothing ran, nothing written
+
+
+def test_compare_runs_every_agent_on_the_same_episodes(tmp_path, capsys):
+    args = [
+        f"output_dir={tmp_path}",
+        "agents=[expert,random]",
+        "num_episodes=2",
+        "workers=1",
+        "env.image_size=32",
+        "env.max_episode_steps=20",
+        *FAST,
+    ]
+    assert run_from_cli("compare", args) == 0
+    table = json.loads((tmp_path / "compare.json").read_text())
+    assert list(table) == ["expert", "random"]
+    for agent in table:
+        metrics = json.loads((tmp_path / agent / "metrics.json").read_text())
+        assert table[agent]["success"] == metrics["metrics"]["success"]
+        ids = [r["episode_id"] for r in rows_of(tmp_path / agent)]
+        assert ids == [r["episode_id"] for r in rows_of(tmp_path / "expert")]
+    md = (tmp_path / "compare.md").read_text()
+    assert "| expert" in md and "| random" in md and "| random" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_eval_killed_with_sigkill_and_run_again_equals_a_straight_run(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    common = ["agent=random", "num_episodes=6", "env.max_episode_steps=150"]
+    args = ["--config-name", "config_debug", *common, *FAST, "eval.gif_successes=0"]
+    out = tmp_path / "killed"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    cmd = [sys.executable, "-m", "vla_gr.evaluate", *args, f"output_dir={out}"]
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    rows_file = out / "episodes.jsonl"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        if rows_file.is_file() and len(rows_file.read_text().splitlines()) >= 2:
+            break
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    finished = len(rows_file.read_text().splitlines())
+    assert 2 <= finished < 6, "the kill should land mid-run"
+    assert subprocess.run(cmd, env=env, capture_output=True).returncode == 0
+    straight = evaluate(cfg_for(tmp_path / "straight", *common))
+    resumed = json.loads((out / "metrics.json").read_text())
+    assert without_timing(resumed) == without_timing(straight)
+    assert no_latency(rows_of(out)) == no_latency(rows_of(tmp_path / "straight"))
