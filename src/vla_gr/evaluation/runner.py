@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import multiprocessing as mp
 import time
 from collections.abc import Iterator, Sequence
@@ -60,13 +61,23 @@ def instruction_kind(instruction: str) -> str:
 
 
 def _distractor_distances(env, xy: tuple[float, float]) -> dict[str, float]:
-    """Geodesic distance (m) from ``xy`` to each object of the goal's category but the goal."""
+    """Distance (m) from ``xy`` to each object of the goal's category but the goal.
+
+    Geodesic for distractors whose footprint may lie within ``success_distance``; for the
+    others a straight-line lower bound (centre distance minus half-diagonal), which already
+    exceeds ``success_distance`` and spares a fast-marching solve.
+    """
     from vla_gr.envs.geodesic import distance_at, goal_distance_field
     from vla_gr.envs.instructions import distractors
 
     u = env.unwrapped
     out = {}
     for oid in distractors(u.house, u.goal.instance_id):
+        obj = u.house.object(oid)
+        bound = math.hypot(obj.x - xy[0], obj.y - xy[1]) - math.hypot(*obj.half_extents)
+        if bound > u.success_distance:
+            out[str(oid)] = round(bound, 4)
+            continue
         field = goal_distance_field(u.house, oid)  # (H, W)
         out[str(oid)] = distance_at(field, u.house.grid, *xy)
     return out
@@ -84,7 +95,7 @@ def run_episode(
 
     Row keys: ``episode_index``, ``episode_id``, ``spec``, ``metrics`` (the final info),
     ``stopped``, ``cause`` (None on success), ``num_rooms``, ``goal_category``,
-    ``instruction_kind``, ``distractor_distances``, ``trace`` (``xy`` (T+1, 2),
+    ``instruction_kind``, ``distractor_distances`` (after a wrong STOP), ``trace`` (``xy`` (T+1, 2),
     ``goal_pixels`` (T+1,) or -1 without semantic, ``distance`` (T+1,)), ``actions``
     (T, 3), ``latency_ms`` ({part: (T,)}), ``parameters``.
     """
