@@ -190,7 +190,7 @@ def test_a_trained_checkpoint_reports_latency_and_parameters(tmp_path, checkpoin
 
     metrics = evaluate(
         cfg_for(tmp_path, "agent=checkpoint", f"checkpoint={checkpoint}", "num_episodes=2",
-                "env.max_episode_steps=8", "workers=2")
+                "env.max_episode_steps=8")
     )  # fmt: skip
     policy = VLAGRPolicy.from_pretrained(checkpoint)
     assert metrics["parameters"]["total"] == sum(p.numel() for p in policy.parameters())

@@ -16,7 +16,6 @@ from __future__ import annotations
 import json
 import logging
 import math
-import multiprocessing as mp
 import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -195,27 +194,22 @@ def thresholds_from_config(cfg) -> CauseThresholds:
 def iter_episode_rows(
     cfg, agent_name: str, env_kwargs: dict, indices: Sequence[int], workers: int = 1
 ) -> Iterator[dict]:
-    """Rows of episodes ``indices``, in that order, from ``workers`` processes (1: here)."""
-    if workers < 1:
-        raise ValueError(f"workers={workers} must be >= 1")
-    if not indices:
-        return
-    if workers == 1 or len(indices) == 1:
-        threads = torch.get_num_threads()
-        _init_worker(cfg, agent_name, env_kwargs, indices[0])  # 1 thread, as in workers
-        try:
-            for index in indices:
-                yield _work(index)
-        finally:
-            _WORKER.pop("env").close()
-            _WORKER.clear()
-            torch.set_num_threads(threads)
-        return
-    ctx = mp.get_context("spawn")
-    n = min(workers, len(indices))
-    init_args = (cfg, agent_name, env_kwargs, indices[0])
-    with ctx.Pool(n, initializer=_init_worker, initargs=init_args) as pool:
-        yield from pool.imap(_work, indices, chunksize=1)
+    """Rows of episodes ``indices``, in that order, from ``workers`` processes (1: here).
+
+    Every worker, this process included, runs torch on one thread: the same arithmetic,
+    so the rows do not depend on ``workers``.
+    """
+    from vla_gr.data.collect import map_in_workers
+
+    threads = torch.get_num_threads()
+
+    def close() -> None:
+        _WORKER.pop("env").close()
+        _WORKER.clear()
+        torch.set_num_threads(threads)
+
+    init_args = (cfg, agent_name, env_kwargs, indices[0] if indices else 0)
+    yield from map_in_workers(_init_worker, init_args, _work, indices, workers, close)
 
 
 # ----------------------------------------------------------------------------- rows on disk
