@@ -95,6 +95,7 @@ def test_a_killed_run_resumes_from_its_finished_rows(tmp_path):
     (part / "episodes.jsonl").write_text(lines[0] + "\n" + lines[1][:50])  # torn second row
     resumed = evaluate(cfg_for(part, *common))
     assert without_timing(resumed) == without_timing(straight)
+    assert resumed["timing"]["episodes_run"] == 2 and straight["timing"]["episodes_run"] == 3
     rows = rows_of(part)
     assert json.dumps(rows[0]) == lines[0]  # kept as written (same latency): not re-run
     assert no_latency(rows) == no_latency(rows_of(tmp_path / "straight"))

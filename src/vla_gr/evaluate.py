@@ -242,7 +242,8 @@ def evaluate(cfg, agent: str | None = None) -> dict:
     finally:
         writer.close()
     rows = [done[k] for k in indices]
-    metrics = summarize_rows(rows, header, time.perf_counter() - t0, cfg.eval.workers)
+    seconds = time.perf_counter() - t0
+    metrics = summarize_rows(rows, header, seconds, cfg.eval.workers, ran=len(todo))
     (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=1))
     chosen = select_episodes(rows, cfg.eval.gif_successes, cfg.eval.gif_per_cause)
     pictures = {}

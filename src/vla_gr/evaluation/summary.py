@@ -71,8 +71,15 @@ def latency(rows: Sequence[dict]) -> dict[str, dict]:
     return out
 
 
-def summarize_rows(rows: Sequence[dict], header: dict, seconds: float, workers: int) -> dict:
-    """The ``metrics.json`` content; ``header`` holds the run settings (agent, env, ...)."""
+def summarize_rows(
+    rows: Sequence[dict], header: dict, seconds: float, workers: int, ran: int | None = None
+) -> dict:
+    """The ``metrics.json`` content; ``header`` holds the run settings (agent, env, ...).
+
+    ``seconds`` is the time this invocation took to run ``ran`` of the episodes (fewer than
+    ``len(rows)`` after a resume).
+    """
+    ran = len(rows) if ran is None else ran
     if not rows:
         raise ValueError("no episodes to summarize")
     return {
@@ -85,7 +92,8 @@ def summarize_rows(rows: Sequence[dict], header: dict, seconds: float, workers: 
         "timing": {
             "seconds": seconds,
             "workers": workers,
-            "episodes_per_min": 60.0 * len(rows) / seconds if seconds > 0 else 0.0,
+            "episodes_run": ran,
+            "episodes_per_min": 60.0 * ran / seconds if seconds > 0 and ran else 0.0,
         },
     }
 
