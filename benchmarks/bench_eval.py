@@ -4,10 +4,13 @@
 
 Rows: episodes/min and env steps/s of ``evaluate`` for the ``expert`` and a trained tiny
 checkpoint (``config_debug`` recipe, trained here for 2 steps unless ``--checkpoint``)
-with 1 and 2 workers (loop time only: no report). Overhead: the same env and agent run
+with 1 and 2 workers (loop time only: no report). The tiny checkpoint calls STOP within a
+few steps, so it also runs as ``checkpoint_nostop`` (its STOP output ignored): full-length
+episodes at the same cost per decision. Overhead: the same env and agent run
 the same episodes once through a bare ``env.step(agent.act(obs))`` loop and once through
 the harness's ``run_episode`` (per-step record, latency, causes), interleaved ``--rounds``
-times, best time of each; the bare loop without semantic rendering is shown too.
+times, best CPU time of each (process time: less sensitive than wall time to other jobs on
+a shared machine); the bare loop without semantic rendering is shown too.
 Writes ``results/bench_eval.json`` and ``.md`` (with the load average: a shared machine).
 """
 
@@ -32,6 +35,37 @@ import torch  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent
 DEFAULT_OUT = ROOT / "results" / "bench_eval"
+AGENTS = ("expert", "checkpoint", "checkpoint_nostop")
+
+
+class NoStop:
+    """Wraps an agent and ignores its STOP (the episode runs to its budget)."""
+
+    def __init__(self, agent) -> None:
+        self.agent = agent
+
+    def reset(self, seed=None) -> None:
+        self.agent.reset(seed)
+
+    def act(self, obs):
+        action = self.agent.act(obs).copy()  # (3,)
+        action[2] = -1.0
+        return action
+
+    def parameters(self) -> dict:
+        return self.agent.parameters()
+
+
+def _register_nostop() -> None:
+    """Module level, so that spawned workers (which import this script) know it too."""
+    from vla_gr.evaluation.agents import AGENTS as REGISTRY
+    from vla_gr.evaluation.agents import make_agent
+
+    if "checkpoint_nostop" not in REGISTRY:
+        REGISTRY["checkpoint_nostop"] = lambda cfg, env: NoStop(make_agent("checkpoint", cfg, env))
+
+
+_register_nostop()
 
 
 def tiny_checkpoint(tmp: Path, image_size: int) -> Path:
@@ -108,14 +142,15 @@ def harness_loop(env, agent, indices) -> int:
     return sum(run_episode(env, agent, k)["metrics"]["steps"] for k in indices)
 
 
-def overhead(cfg, agent_name: str, rounds: int) -> dict:
-    """Best-of-``rounds`` seconds of the bare loop and of the harness on the same episodes."""
+def overhead(cfg, agent_name: str, rounds: int, episodes: int) -> dict:
+    """Best-of-``rounds`` CPU seconds of the bare loop and of the harness, same episodes."""
     from vla_gr.data.collect import make_env
     from vla_gr.evaluate import plan_episodes
     from vla_gr.evaluation.agents import make_agent
 
     torch.set_num_threads(1)
     indices, env_kwargs, _ = plan_episodes(cfg)
+    indices = indices[:episodes]
     times: dict[str, list[float]] = {"bare_no_semantic": [], "bare": [], "harness": []}
     steps = {}
     envs = {
@@ -130,9 +165,9 @@ def overhead(cfg, agent_name: str, rounds: int) -> dict:
         bare_loop(envs["bare_no_semantic"], agents["bare_no_semantic"], indices[:1])
         for _ in range(rounds):
             for name, loop in loops.items():
-                t0 = time.perf_counter()
-                steps[name] = loop(envs[name], agents[name], indices)
-                times[name].append(time.perf_counter() - t0)
+                t0 = time.process_time()  # CPU time of this process (all its threads):
+                steps[name] = loop(envs[name], agents[name], indices)  # robust to other load
+                times[name].append(time.process_time() - t0)
     finally:
         envs["bare"].close()
         envs["bare_no_semantic"].close()
@@ -166,7 +201,11 @@ def write_results(result: dict, out: Path) -> str:
         )
     lines += [
         "",
-        "| agent | bare loop, no semantic (s) | bare loop (s) | harness (s) | harness overhead |",
+        f"Harness overhead: CPU seconds, best of {result['rounds']} interleaved rounds on "
+        f"{result['overhead_episodes']} episodes, same env and agent.",
+        "",
+        "| agent | bare loop, no semantic (CPU s) | bare loop (CPU s) | harness (CPU s) | "
+        "harness overhead |",
         "|---|---|---|---|---|",
     ]
     for o in result["overhead"]:
@@ -187,7 +226,8 @@ def main(argv=None) -> int:
     parser.add_argument("--episodes", type=int, default=8)
     parser.add_argument("--max-steps", type=int, default=300)
     parser.add_argument("--image-size", type=int, default=32)
-    parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--overhead-episodes", type=int, default=6)
     parser.add_argument("--checkpoint", type=Path, default=None)
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
     args = parser.parse_args(argv)
@@ -199,14 +239,16 @@ def main(argv=None) -> int:
         cfg = base_config(args, checkpoint, tmp / "eval")
         runs = [
             throughput(cfg, agent, workers, tmp / f"{agent}-{workers}")
-            for agent in ("expert", "checkpoint")
+            for agent in AGENTS
             for workers in (1, 2)
         ]
-        over = [overhead(cfg, agent, args.rounds) for agent in ("expert", "checkpoint")]
+        over = [overhead(cfg, agent, args.rounds, args.overhead_episodes) for agent in AGENTS]
     result = {
         "episodes": args.episodes,
         "max_steps": args.max_steps,
         "image_size": args.image_size,
+        "rounds": args.rounds,
+        "overhead_episodes": args.overhead_episodes,
         "checkpoint": str(args.checkpoint or "config_debug, 2 training steps"),
         "throughput": runs,
         "overhead": over,

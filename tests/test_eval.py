@@ -3,6 +3,7 @@ failure causes from scripted agents, and one-line refusals of bad input."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -49,7 +50,7 @@ class Constant:
         return {}
 
 
-def test_expert_reaches_every_goal_random_does_worse_and_metrics_match_the_rows(tmp_path):
+def test_expert_reaches_every_goal_random_does_worse_and_metrics_match_the_rows(tmp_path, caplog):
     out = tmp_path / "expert"
     metrics = evaluate(cfg_for(out, "agent=expert", "num_episodes=3", "env.max_episode_steps=500"))
     assert metrics["metrics"]["success"] == 1.0 and metrics["metrics"]["episodes"] == 3
@@ -65,12 +66,20 @@ def test_expert_reaches_every_goal_random_does_worse_and_metrics_match_the_rows(
             sub = [r for r in rows if str(r[key]) == value]
             assert g["success"] == pytest.approx(np.mean([r["metrics"]["success"] for r in sub]))
     assert sum(on_disk["failure_causes"].values()) == 0
+    assert on_disk["env"]["depth_noise_std"] == 0.0 and on_disk["env"]["actuation_noise"] == 0.0
     assert on_disk["latency_ms"]["decision"]["calls"] == sum(len(r["actions"]) for r in rows)
     assert all(len(r["trace"]["xy"]) == r["metrics"]["steps"] + 1 for r in rows)
     assert (out / "report.md").is_file() and (out / "breakdowns.png").is_file()
     assert len(list(out.glob("*.gif"))) == 1 and len(list(out.glob("*_topdown.png"))) == 1
 
-    rand = evaluate(cfg_for(tmp_path / "rand", "agent=random", "num_episodes=3"))
+    noisy = ("env.depth_noise_std=0.05", "env.actuation_noise=0.2")
+    cfg = cfg_for(tmp_path / "rand", "agent=random", "num_episodes=3", *noisy)
+    cfg = dataclasses.replace(cfg, eval=dataclasses.replace(cfg.eval, gif_per_cause=1))
+    with caplog.at_level(logging.WARNING):
+        rand = evaluate(cfg)
+    assert list((tmp_path / "rand").glob("*.gif"))  # replayed with the same noise draws:
+    assert "replay ended elsewhere" not in caplog.text  # every replay ends where the run did
+    assert rand["env"]["depth_noise_std"] == 0.05 and rand["env"]["actuation_noise"] == 0.2
     assert rand["metrics"]["success"] < 1.0
     assert sum(rand["failure_causes"].values()) == 3 - round(3 * rand["metrics"]["success"])
     assert all(math.isfinite(r["metrics"]["distance_to_goal"]) for r in rows_of(tmp_path / "rand"))

@@ -10,8 +10,8 @@ rows are read back, the rest run, and ``metrics.json`` equals an uninterrupted r
 ``--config-name compare agents=[a,b]`` runs several agents on the same episodes and
 writes ``compare.md`` / ``compare.json``.
 
-``rollout_policy`` / ``summarize`` are the library calls training's closed-loop
-validation uses (same episode loop, :func:`vla_gr.evaluation.runner.run_episode`).
+``rollout_policy`` / ``summarize`` (from :mod:`vla_gr.evaluation.runner`, re-exported) are
+the library calls training's closed-loop validation uses: the same episode loop.
 """
 
 from __future__ import annotations
@@ -23,11 +23,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-import torch
-from torch import nn
-
-from vla_gr.envs.metrics import aggregate
-from vla_gr.evaluation.agents import PolicyAgent
+from vla_gr.evaluation.runner import rollout_policy, summarize
 
 log = logging.getLogger(__name__)
 
@@ -51,44 +47,6 @@ DEFAULT_SPLIT_EPISODES = 10
 
 class EvalInputError(ValueError):
     """Bad input found before any episode runs (one line, naming the key or file)."""
-
-
-def rollout_policy(
-    policy, env_kwargs: dict, episodes: Sequence[int], device: torch.device | str = "cpu"
-) -> list[dict]:
-    """Run ``policy`` on each episode index of ``episodes``; one final info dict per episode.
-
-    ``policy`` needs ``reset()`` and ``select_action(obs) -> (1, A)``; an ``nn.Module`` is
-    moved to ``device`` and put in eval mode for the rollout (its train/eval mode is restored
-    afterwards). ``env_kwargs`` go to ``gymnasium.make("VLAGR/ObjectNav-v0", ...)``
-    (``max_episode_steps`` is the step budget). Episode ``k`` is ``env.reset(seed=k)``.
-    """
-    from vla_gr.data.collect import make_env
-    from vla_gr.evaluation.runner import run_episode
-
-    if len(episodes) == 0:
-        raise ValueError("episodes must name at least one episode index")
-    is_module = isinstance(policy, nn.Module)
-    was_training = policy.training if is_module else False
-    if is_module:
-        policy.to(device).eval()
-    env = make_env(dict(env_kwargs))
-    agent = PolicyAgent(policy, device)
-    infos: list[dict] = []
-    try:
-        for k in episodes:
-            row = run_episode(env, agent, int(k))
-            infos.append(dict(row["metrics"], episode_index=int(k)))
-    finally:
-        env.close()
-        if is_module:
-            policy.train(was_training)
-    return infos
-
-
-def summarize(infos: Sequence[dict]) -> dict:
-    """Mean success, SPL, soft-SPL, collision rate, path length, final distance; ``episodes``."""
-    return aggregate(infos)
 
 
 # ----------------------------------------------------------------------------- the command

@@ -22,7 +22,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from torch import nn
 
+from vla_gr.envs.metrics import aggregate
 from vla_gr.evaluation.causes import CauseThresholds, failure_cause
 
 log = logging.getLogger(__name__)
@@ -152,6 +154,44 @@ def run_episode(
         "latency_ms": {k: [round(v, 4) for v in vals] for k, vals in latency.items()},
         "parameters": agent.parameters(),
     }
+
+
+def rollout_policy(
+    policy, env_kwargs: dict, episodes: Sequence[int], device: torch.device | str = "cpu"
+) -> list[dict]:
+    """Run ``policy`` on each episode index of ``episodes``; one final info dict per episode.
+
+    ``policy`` needs ``reset()`` and ``select_action(obs) -> (1, A)``; an ``nn.Module`` is
+    moved to ``device`` and put in eval mode for the rollout (its train/eval mode is restored
+    afterwards). ``env_kwargs`` go to ``gymnasium.make("VLAGR/ObjectNav-v0", ...)``
+    (``max_episode_steps`` is the step budget). Episode ``k`` is ``env.reset(seed=k)``.
+    """
+    from vla_gr.data.collect import make_env
+    from vla_gr.evaluation.agents import PolicyAgent
+
+    if len(episodes) == 0:
+        raise ValueError("episodes must name at least one episode index")
+    is_module = isinstance(policy, nn.Module)
+    was_training = policy.training if is_module else False
+    if is_module:
+        policy.to(device).eval()
+    env = make_env(dict(env_kwargs))
+    agent = PolicyAgent(policy, device)
+    infos: list[dict] = []
+    try:
+        for k in episodes:
+            row = run_episode(env, agent, int(k))
+            infos.append(dict(row["metrics"], episode_index=int(k)))
+    finally:
+        env.close()
+        if is_module:
+            policy.train(was_training)
+    return infos
+
+
+def summarize(infos: Sequence[dict]) -> dict:
+    """Mean success, SPL, soft-SPL, collision rate, path length, final distance; ``episodes``."""
+    return aggregate(infos)
 
 
 # ----------------------------------------------------------------------------- workers
