@@ -165,6 +165,8 @@ def rollout_policy(
     moved to ``device`` and put in eval mode for the rollout (its train/eval mode is restored
     afterwards). ``env_kwargs`` go to ``gymnasium.make("VLAGR/ObjectNav-v0", ...)``
     (``max_episode_steps`` is the step budget). Episode ``k`` is ``env.reset(seed=k)``.
+    Each episode seeds torch (replayable sampling) inside a forked RNG: the caller's random
+    streams (a training run's) are left as they were.
     """
     from vla_gr.data.collect import make_env
     from vla_gr.evaluation.agents import PolicyAgent
@@ -179,9 +181,10 @@ def rollout_policy(
     agent = PolicyAgent(policy, device)
     infos: list[dict] = []
     try:
-        for k in episodes:
-            row = run_episode(env, agent, int(k))
-            infos.append(dict(row["metrics"], episode_index=int(k)))
+        with torch.random.fork_rng():
+            for k in episodes:
+                row = run_episode(env, agent, int(k))
+                infos.append(dict(row["metrics"], episode_index=int(k)))
     finally:
         env.close()
         if is_module:
