@@ -291,3 +291,22 @@ def test_eval_killed_with_sigkill_and_run_again_equals_a_straight_run(tmp_path):
     resumed = json.loads((out / "metrics.json").read_text())
     assert without_timing(resumed) == without_timing(straight)
     assert no_latency(rows_of(out)) == no_latency(rows_of(tmp_path / "straight"))
+
+
+class TwoPart(Constant):
+    """A scripted agent that reports the time of its two parts, as a dual system would."""
+
+    def act(self, obs) -> np.ndarray:
+        self.last_timings = {"s1": 0.002, "s2": 0.010}  # seconds
+        return self.action
+
+
+def test_latency_is_reported_per_part_the_agent_names(tmp_path, monkeypatch):
+    monkeypatch.setitem(AGENTS, "two_part", lambda cfg, env: TwoPart([0.5, 0.0, -1.0]))
+    out = tmp_path / "parts"
+    metrics = evaluate(cfg_for(out, "agent=two_part", "num_episodes=1", "env.max_episode_steps=5"))
+    lat = metrics["latency_ms"]
+    assert set(lat) == {"decision", "s1", "s2"}
+    assert lat["s1"]["p50"] == pytest.approx(2.0) and lat["s2"]["p99"] == pytest.approx(10.0)
+    assert lat["decision"]["calls"] == lat["s1"]["calls"] == 5
+    assert "| s2" in (out / "report.md").read_text()
