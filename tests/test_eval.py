@@ -198,10 +198,11 @@ def checkpoint(tmp_path_factory) -> Path:
 def test_a_trained_checkpoint_reports_latency_and_parameters(tmp_path, checkpoint):
     from vla_gr.policy import VLAGRPolicy
 
+    # no agent= given: a checkpoint= means the checkpoint agent
     metrics = evaluate(
-        cfg_for(tmp_path, "agent=checkpoint", f"checkpoint={checkpoint}", "num_episodes=2",
-                "env.max_episode_steps=8")
-    )  # fmt: skip
+        cfg_for(tmp_path, f"checkpoint={checkpoint}", "num_episodes=2", "env.max_episode_steps=8")
+    )
+    assert metrics["agent"] == "checkpoint"
     policy = VLAGRPolicy.from_pretrained(checkpoint)
     assert metrics["parameters"]["total"] == sum(p.numel() for p in policy.parameters())
     assert metrics["parameters"]["head"] == sum(p.numel() for p in policy.head.parameters())

@@ -119,6 +119,11 @@ def run_header(cfg, agent: str, source: str, indices: Sequence[int]) -> dict:
     }
 
 
+def default_agent(cfg) -> str:
+    """``eval.agent``, else ``checkpoint`` when ``eval.checkpoint`` is given, else ``expert``."""
+    return cfg.eval.agent or ("checkpoint" if cfg.eval.checkpoint else "expert")
+
+
 def check_agent(cfg, agent: str) -> None:
     """Refuse an unknown agent or an unusable checkpoint before any episode runs."""
     from vla_gr.evaluation.agents import AgentError, check_agent_name, check_checkpoint
@@ -173,7 +178,7 @@ def evaluate(cfg, agent: str | None = None) -> dict:
     from vla_gr.evaluation.runner import RowWriter, iter_episode_rows
     from vla_gr.evaluation.summary import summarize_rows
 
-    agent = agent or cfg.eval.agent
+    agent = agent or default_agent(cfg)
     check_agent(cfg, agent)
     indices, env_kwargs, source = plan_episodes(cfg)
     header = run_header(cfg, agent, source, indices)

@@ -114,7 +114,7 @@ class DemoConfig:
 class EvalConfig:
     """``vla-gr eval``: closed-loop evaluation of an agent (or several: ``agents``)."""
 
-    agent: str = "expert"  # a name of vla_gr.evaluation.AGENTS
+    agent: str | None = None  # name in vla_gr.evaluation.AGENTS (None: checkpoint if given)
     agents: list[str] = field(default_factory=list)  # non-empty: compare these agents
     checkpoint: str | None = None  # for agent=checkpoint: <run>/checkpoints/best
     split: str = "val"
