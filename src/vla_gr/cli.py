@@ -26,6 +26,7 @@ from vla_gr.configs.command import (
 COMMANDS: dict[str, tuple[str, str]] = {
     "collect": ("vla_gr.data.collect:run_from_cli", "run the expert and write a zarr dataset"),
     "demo": ("vla_gr.demo:run_from_cli", "run episodes, print metrics, write GIF + top-down PNG"),
+    "eval": ("vla_gr.evaluate:run_from_cli", "closed-loop evaluation of an agent: metrics, report"),
     "train": ("vla_gr.train:run_from_cli", "train the agent (single process or under torchrun)"),
 }
 

@@ -45,7 +45,7 @@ from vla_gr.envs.episodes import (
 from vla_gr.envs.episodes import (
     goal_field as episode_goal_field,
 )
-from vla_gr.envs.geodesic import sample_field, traversable_cells
+from vla_gr.envs.geodesic import distance_at, traversable_cells
 from vla_gr.envs.metrics import EpisodeMeasures
 from vla_gr.envs.rendering import RGBDRenderer, make_gl_context, tune_model_for_speed
 from vla_gr.envs.scene import House, ObjectInstance
@@ -162,6 +162,8 @@ class ObjectNavEnv(gym.Env):
         episodes_per_scene: int = EPISODES_PER_SCENE,
         scene_cache_size: int = 4,
         render_mode: str | None = None,
+        depth_noise_std: float = 0.0,
+        actuation_noise: float = 0.0,
     ) -> None:
         if split not in ("train", "val", "test"):
             raise ValueError(f"split={split!r} is not valid; choose one of train, val, test")
@@ -176,6 +178,12 @@ class ObjectNavEnv(gym.Env):
         ):
             if not value > 0:
                 raise ValueError(f"{name}={value} must be > 0")
+        for name, value in (
+            ("depth_noise_std", depth_noise_std),
+            ("actuation_noise", actuation_noise),
+        ):
+            if not value >= 0:
+                raise ValueError(f"{name}={value} must be >= 0")
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode={render_mode!r} must be None or 'rgb_array'")
         self.split = split
@@ -190,6 +198,9 @@ class ObjectNavEnv(gym.Env):
         self.episodes_per_scene = int(episodes_per_scene)
         self.scene_cache_size = int(scene_cache_size)
         self.render_mode = render_mode
+        # Robustness noise (off by default), drawn from ``np_random``: reset(seed=k) replays it.
+        self.depth_noise_std = float(depth_noise_std)  # metres, Gaussian, per pixel
+        self.actuation_noise = float(actuation_noise)  # relative, per step, on v and w
         self.max_linear_speed = MAX_LINEAR_SPEED
         self.max_angular_speed = MAX_ANGULAR_SPEED
         if episodes is None:
@@ -276,6 +287,9 @@ class ObjectNavEnv(gym.Env):
         if not called_stop:
             linear = float(act[0]) * self.max_linear_speed
             angular = float(act[1]) * self.max_angular_speed
+            if self.actuation_noise > 0:
+                gain = 1.0 + self.actuation_noise * self.np_random.standard_normal(2)  # (2,)
+                linear, angular = linear * float(gain[0]), angular * float(gain[1])
             adr = scene.robot.qpos_adr
             x0, y0 = scene.data.qpos[adr[0]], scene.data.qpos[adr[1]]
             touched = rb.drive(scene.model, scene.data, scene.robot, linear, angular, SUBSTEPS)
@@ -289,7 +303,7 @@ class ObjectNavEnv(gym.Env):
         )
         if not called_stop:
             self.trajectory_world.append((x, y))
-        distance = sample_field(self.goal_distance, self.house.grid, x, y)
+        distance = distance_at(self.goal_distance, self.house.grid, x, y)
         self._measures.update((x, y), distance, collided, called_stop)
         self._steps += 1
         terminated = called_stop
@@ -465,6 +479,9 @@ class ObjectNavEnv(gym.Env):
         scene = self._scene
         renderer = self._renderer(self.image_size, True)
         rgb, depth = renderer.render(scene.data)  # (H, W, 3), (H, W)
+        if self.depth_noise_std > 0:
+            noise = self.np_random.normal(0.0, self.depth_noise_std, depth.shape)  # (H, W)
+            depth = np.clip(depth + noise, 0.0, self.max_depth).astype(np.float32)
         pose = rb.relative_pose(self.robot_pose_world(), self.start_pose_world)
         obs = {
             "rgb": rgb,

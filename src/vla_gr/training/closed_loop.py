@@ -34,7 +34,7 @@ def closed_loop_metrics(model, cfg, dist: DistInfo, amp_context) -> dict[str, fl
     out: list = [None]
     if dist.is_main:
         from vla_gr.data.collect import env_kwargs_from_config
-        from vla_gr.evaluate import rollout_policy, summarize
+        from vla_gr.evaluation.runner import rollout_policy, summarize
 
         env_kwargs = env_kwargs_from_config(cfg, "val", semantic=False)
         env_kwargs["max_episode_steps"] = t.eval_max_steps
