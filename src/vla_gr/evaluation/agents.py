@@ -107,8 +107,57 @@ class PolicyAgent:
     def act(self, obs) -> np.ndarray:
         return as_env_action(self.policy.select_action(obs))  # (A,)
 
+    @property
+    def last_timings(self) -> dict[str, float] | None:
+        """The policy's per-part seconds of its last decision (S1, S2), if it reports them."""
+        return getattr(self.policy, "last_timings", None)
+
     def parameters(self) -> dict[str, int]:
         return module_parameters(self.policy) if isinstance(self.policy, nn.Module) else {}
+
+
+class TrueMaskAgent:
+    """The dual system with the TRUE goal mask as S2's perception (the planner's ceiling).
+
+    Privileged: its goal likelihood is ``semantic == goal instance`` (needs the env's
+    ``semantic`` observation); the navigator, its GR field, the S1 follower and the schedule
+    come from ``cfg.model`` exactly as for the learned agent.
+    """
+
+    def __init__(self, cfg, env) -> None:
+        from vla_gr.core.dual_system import plan_interval
+        from vla_gr.policy.dual_system import GroundedDualSystem
+
+        m = cfg.model
+        self.env = env
+        self.system = GroundedDualSystem(
+            self._true_mask,
+            navigator=m.navigator,
+            field=m.gr_field,
+            pursuit=m.pursuit,
+            plan_every=plan_interval(
+                m.dual_system.control_frequency_hz, m.dual_system.planning_frequency_hz
+            ),
+        )
+
+    def _true_mask(self, obs) -> np.ndarray:
+        if "semantic" not in obs:
+            raise AgentError("agent=true_mask needs the env's semantic observation")
+        goal = int(self.env.unwrapped.goal.instance_id)
+        return (np.asarray(obs["semantic"]) == goal).astype(np.float32)  # (H, W)
+
+    def reset(self, seed: int | None = None) -> None:
+        self.system.reset()
+
+    def act(self, obs) -> np.ndarray:
+        return self.system.step(obs)  # (3,)
+
+    @property
+    def last_timings(self) -> dict[str, float]:
+        return self.system.last_timings
+
+    def parameters(self) -> dict[str, int]:
+        return {}
 
 
 class ExpertAgent:
@@ -150,7 +199,11 @@ class RandomAgent:
 
 # ----------------------------------------------------------------------------- checkpoints
 
-_MATCHED = (("model.image_size", "env.image_size"), ("model.max_depth", "env.max_depth"))
+_MATCHED = (
+    ("model.image_size", "env.image_size"),
+    ("model.encoders.max_depth", "env.max_depth"),
+    ("model.goal_head.max_depth", "env.max_depth"),
+)
 _SAME = ("env.control_hz",)
 
 
@@ -229,6 +282,11 @@ def _checkpoint_agent(cfg, env) -> PolicyAgent:
 @register_agent("expert")
 def _expert_agent(cfg, env) -> ExpertAgent:
     return ExpertAgent(cfg, env)
+
+
+@register_agent("true_mask")
+def _true_mask_agent(cfg, env) -> TrueMaskAgent:
+    return TrueMaskAgent(cfg, env)
 
 
 @register_agent("random")
