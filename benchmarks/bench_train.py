@@ -24,11 +24,12 @@ from pathlib import Path
 import torch
 
 from vla_gr.configs import load_config
-from vla_gr.train import build_policy, train_step
+from vla_gr.train import build_policy
 from vla_gr.training.data import build_datasets, build_loaders, write_synthetic_store
 from vla_gr.training.distributed import DistInfo, resolve_device
 from vla_gr.training.ema import EMA
 from vla_gr.training.optim import build_optimizer, build_scheduler
+from vla_gr.training.step import train_step
 
 RESULTS = Path(__file__).resolve().parent / "results"
 

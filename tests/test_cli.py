@@ -1,6 +1,7 @@
 """The ``vla-gr`` command: help, version, ``python -m`` entry points, and the demo."""
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -17,7 +18,7 @@ def test_help_lists_commands(capsys):
         main(["--help"])
     assert exc.value.code == 0
     out = capsys.readouterr().out
-    for name in ("collect", "demo", "train"):
+    for name in ("collect", "demo", "train", "store"):
         assert name in out
     assert set(COMMANDS) >= {"collect", "demo", "train"}
 
@@ -41,11 +42,77 @@ def test_console_script_and_module_entry():
         assert "--config-name" in res.stdout
 
 
-def test_unknown_config_key_is_hydra_error(tmp_path):
-    from hydra.errors import ConfigCompositionException
+def _bad_episodes(tmp_path):
+    good = {"episode_id": 0}
+    path = tmp_path / "bad.jsonl"
+    path.write_text("\n" + json.dumps(good) + "\n")  # line 2 lacks most fields
+    return path
 
-    with pytest.raises(ConfigCompositionException):
-        main(["demo", "--config-name", "config_debug", "demo.no_such_key=1"])
+
+DEBUG = ["--config-name", "config_debug"]
+USER_ERRORS = {
+    "unknown key": (["train", *DEBUG, "model.nonexistent=1"], ["'model.nonexistent'", "head"]),
+    "close key": (["train", *DEBUG, "model.head.objectiv=l1"], ["did you mean 'objective'"]),
+    "root key": (["demo", *DEBUG, "nonexistent=1"], ["'nonexistent'", "training"]),
+    "wrong type": (["train", *DEBUG, "training.steps=abc"], ["training.steps", "'abc'", "int"]),
+    "negative lr": (["train", *DEBUG, "training.lr=-1"], ["training.lr=-1.0", "> 0"]),
+    "unknown objective": (
+        ["train", *DEBUG, "model.head.objective=foo"],
+        ["model.head.objective='foo'", "flow_matching", "diffusion", "l1"],
+    ),
+    "unknown on_corrupt": (["train", *DEBUG, "training.on_corrupt=maybe"], ["error", "skip"]),
+    "no equals": (["train", *DEBUG, "model.x"], ["'model.x'", "key=value"]),
+    "unknown recipe": (["train", "--config-name", "nope"], ["'nope'", "config_debug"]),
+    "missing episodes file": (["demo", *DEBUG, "env.episodes={tmp}/none.jsonl"], ["none.jsonl"]),
+    "bad episodes line": (["demo", *DEBUG, "env.episodes={bad}"], ["bad.jsonl:2", "missing"]),
+    "not a store": (["store", "verify", "{tmp}/none.zarr"], ["none.zarr", "not an episode store"]),
+}
+
+
+@pytest.mark.parametrize("case", list(USER_ERRORS))
+def test_user_errors_are_two_lines_naming_the_key(tmp_path, capsys, case):
+    argv, needles = USER_ERRORS[case]
+    bad = _bad_episodes(tmp_path)
+    argv = [a.format(tmp=tmp_path, bad=bad) for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert 1 <= len(err.strip().splitlines()) <= 2, err
+    assert err.startswith(f"vla-gr {argv[0]}") and "Traceback" not in err
+    for needle in needles:
+        assert needle in err, (needle, err)
+
+
+def test_bad_episodes_file_leaves_no_store(tmp_path, capsys):
+    out = tmp_path / "c.zarr"
+    argv = ["collect", *DEBUG, f"env.episodes={_bad_episodes(tmp_path)}", f"collect.output={out}"]
+    assert main(argv) == 2
+    assert "bad.jsonl:2" in capsys.readouterr().err and not out.exists()
+
+
+def test_verbose_and_hydra_full_error_show_the_traceback(monkeypatch):
+    from vla_gr.errors import ConfigError
+
+    argv = ["train", *DEBUG, "training.steps=abc"]
+    with pytest.raises(ConfigError, match="training.steps"):
+        main([*argv, "--verbose"])
+    monkeypatch.setenv("HYDRA_FULL_ERROR", "1")
+    with pytest.raises(ConfigError):
+        main(argv)
+
+
+def test_console_script_error_output(tmp_path):
+    script = Path(sys.executable).with_name("vla-gr")
+    argv = [str(script), "demo", *DEBUG, "model.nonexistent=1"]  # demo: no torch import
+    env = {k: v for k, v in os.environ.items() if k != "HYDRA_FULL_ERROR"}
+    res = subprocess.run(argv, capture_output=True, text=True, env=env)
+    assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 2
+    assert "model.nonexistent" in res.stderr and "Traceback" not in res.stderr
+    res = subprocess.run([*argv, "--verbose"], capture_output=True, text=True, env=env)
+    assert res.returncode == 1 and "Traceback" in res.stderr and "ConfigError" in res.stderr
+    module = [sys.executable, "-m", "vla_gr.demo", *DEBUG, "demo.num_episodes=abc"]
+    res = subprocess.run(module, capture_output=True, text=True, env=env)
+    assert res.returncode == 2 and res.stderr.startswith("python -m vla_gr.demo: error:")
+    assert len(res.stderr.strip().splitlines()) == 1
 
 
 def test_demo_runs_on_debug_config(tmp_path, capsys):
@@ -63,3 +130,16 @@ def test_demo_runs_on_debug_config(tmp_path, capsys):
     png = iio.imread(out_dir / "episode_000_topdown.png")
     assert png.shape[0] == 128 and png.ndim == 3
     assert (out_dir / "episodes.jsonl").read_text().count("\n") == 1
+
+
+def test_no_module_imports_the_cli():
+    """The entry plumbing lives in vla_gr.configs.command: apps import it downward."""
+    import vla_gr
+
+    root = Path(vla_gr.__file__).parent
+    upward = [
+        str(p.relative_to(root))
+        for p in root.rglob("*.py")
+        if p.name != "cli.py" and "vla_gr.cli" in p.read_text(encoding="utf-8")
+    ]
+    assert upward == []

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tests.train_helpers import tiny_policy
+from tests.helpers import tiny_policy
 from vla_gr.envs.metrics import AGGREGATE_KEYS
 from vla_gr.evaluate import rollout_policy, summarize
 
@@ -75,3 +75,13 @@ def test_summarize_averages_the_episode_infos():
 def test_rollout_needs_episodes():
     with pytest.raises(ValueError, match="episodes"):
         rollout_policy(Scripted([0, 0, 1]), ENV, [], "cpu")
+
+
+def test_rollout_leaves_the_callers_torch_random_stream_alone():
+    import torch
+
+    torch.manual_seed(123)
+    expected = torch.rand(3)
+    torch.manual_seed(123)
+    rollout_policy(Scripted([0.0, 0.0, 1.0]), ENV, [0, 1], "cpu")  # seeds each episode
+    assert torch.equal(torch.rand(3), expected)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from tests.train_helpers import fake_batch, tiny_policy
+from tests.helpers import fake_batch, tiny_policy
 from vla_gr.data.normalize import MinMaxNormalizer
 
 
@@ -104,8 +104,7 @@ def _seeded_loss(policy, batch) -> float:
 
 @pytest.mark.parametrize(("objective", "factor"), [("l1", 0.7), ("flow_matching", 0.9)])
 def test_loss_is_finite_and_decreases_on_a_tiny_overfit(objective, factor):
-    sampler = "euler" if objective == "flow_matching" else "none"
-    policy = tiny_policy(0, objective=objective, sampler=sampler, dim=32, hidden_dim=32, horizon=8)
+    policy = tiny_policy(0, objective=objective, dim=32, hidden_dim=32, horizon=8)
     batch = fake_batch(policy.config, 4, seed=4)
     before = _seeded_loss(policy, batch)
     opt = torch.optim.Adam(policy.parameters(), lr=3e-3)
@@ -117,3 +116,32 @@ def test_loss_is_finite_and_decreases_on_a_tiny_overfit(objective, factor):
         opt.step()
     after = _seeded_loss(policy, batch)
     assert after < factor * before, (before, after)
+
+
+@pytest.mark.parametrize(
+    "instruction, says",
+    [
+        (None, "got NoneType"),
+        (b"find the sofa", "got bytes"),
+        (["find the sofa", None], "holds a NoneType"),
+        ([b"find the sofa"], "holds a bytes"),
+        (42, "got int"),
+    ],
+)
+def test_non_string_instruction_is_a_clear_type_error(instruction, says):
+    policy = tiny_policy(0)
+    obs = dict(_env_obs(0), instruction=instruction)
+    if isinstance(instruction, list):
+        obs = dict(_env_obs(0, batch=len(instruction)), instruction=instruction)
+    with pytest.raises(TypeError, match=rf"obs\['instruction'\] must be a string .*{says}"):
+        policy.select_action(obs)
+    batch = fake_batch(policy.config, 2)
+    batch["instruction"] = [instruction, "find the sofa"]
+    with pytest.raises(TypeError, match=r"batch\['instruction'\] must be a string"):
+        policy(batch)
+
+
+def test_string_arrays_are_instructions():
+    policy = tiny_policy(0)
+    obs = dict(_env_obs(0, batch=2), instruction=np.array(["find the sofa", "find the bed"]))
+    assert policy.select_action(obs).shape == (2, 3)

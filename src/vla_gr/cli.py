@@ -1,23 +1,32 @@
 """``vla-gr``: one entry point, one subcommand per app.
 
-Every subcommand takes ``--config-name NAME`` and Hydra ``key=value`` overrides, and is
-also runnable as ``python -m vla_gr.<module>``.
+Every app subcommand takes ``--config-name NAME``, Hydra ``key=value`` overrides and
+``--verbose``, and is also runnable as ``python -m vla_gr.<module>``. ``vla-gr store
+verify PATH`` checks an episode store, ``vla-gr store copy SRC DST`` rewrites one.
+Errors a user causes end in one or two lines on stderr and exit code 2 (see
+``vla_gr.configs.command``).
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
-import logging
 import sys
 from collections.abc import Callable, Sequence
 
 from vla_gr import __version__
+from vla_gr.configs.command import (
+    add_hydra_arguments,
+    add_verbose_argument,
+    configure_logging,
+    run_command,
+)
 
 # subcommand -> ("module:function", one-line help). Functions take (config_name, overrides).
 COMMANDS: dict[str, tuple[str, str]] = {
     "collect": ("vla_gr.data.collect:run_from_cli", "run the expert and write a zarr dataset"),
     "demo": ("vla_gr.demo:run_from_cli", "run episodes, print metrics, write GIF + top-down PNG"),
+    "eval": ("vla_gr.evaluate:run_from_cli", "closed-loop evaluation of an agent: metrics, report"),
     "train": ("vla_gr.train:run_from_cli", "train the agent (single process or under torchrun)"),
 }
 
@@ -37,34 +46,70 @@ def build_parser() -> argparse.ArgumentParser:
     for name, (_, help_text) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
         add_hydra_arguments(p)
+    store = sub.add_parser("store", help="inspect episode stores", description="episode stores")
+    actions = store.add_subparsers(dest="action", metavar="ACTION", required=True)
+    verify = actions.add_parser(
+        "verify",
+        help="check every chunk of a store (present, checksum, values); exit 1 when damaged",
+    )
+    verify.add_argument("path", help="the store folder (e.g. data/expert_train.zarr)")
+    verify.add_argument(
+        "--fast",
+        action="store_true",
+        help="skip decoding images: presence, checksums, actions and poses only",
+    )
+    add_verbose_argument(verify)
+    copy = actions.add_parser(
+        "copy",
+        help="rewrite a store in the current format (adds checksums to a format-1 store)",
+    )
+    copy.add_argument("src", help="the store to read")
+    copy.add_argument("dst", help="the new store (must not exist unless --overwrite)")
+    copy.add_argument("--skip-damaged", action="store_true", help="copy only the intact episodes")
+    copy.add_argument("--overwrite", action="store_true", help="replace dst if it exists")
+    add_verbose_argument(copy)
     return parser
 
 
-def add_hydra_arguments(parser: argparse.ArgumentParser) -> None:
-    """``--config-name`` and free ``key=value`` overrides, as every subcommand takes."""
-    from vla_gr.configs import DEFAULT_CONFIG
+def verify_store_command(path: str, deep: bool) -> int:
+    """Print the health of the store at ``path``; 0 when healthy, 1 when damaged."""
+    from vla_gr.data.verify import verify_store
 
-    parser.add_argument("--config-name", "-cn", default=DEFAULT_CONFIG, help="recipe name")
-    parser.add_argument("overrides", nargs="*", help="Hydra overrides, e.g. env.image_size=128")
-
-
-def module_main(command: str, argv: Sequence[str] | None = None) -> int:
-    """Entry for ``python -m vla_gr.<module>``: parse argv for one subcommand and run it."""
-    parser = argparse.ArgumentParser(prog=f"python -m vla_gr.{command}")
-    add_hydra_arguments(parser)
-    args = parser.parse_args(argv)
-    return _run(command, args.config_name, args.overrides)
+    healthy, lines = verify_store(path, deep=deep)
+    sys.stdout.write("\n".join(lines) + "\n")
+    return 0 if healthy else 1
 
 
-def _run(command: str, config_name: str, overrides: Sequence[str]) -> int:
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-    result = _resolve(COMMANDS[command][0])(config_name, overrides)
-    return int(result) if isinstance(result, int) else 0
+def copy_store_command(src: str, dst: str, skip_damaged: bool, overwrite: bool) -> int:
+    """Copy ``src`` to a new store ``dst`` in the current format; 0 on success."""
+    from vla_gr.data.verify import copy_store
+
+    on_corrupt = "skip" if skip_damaged else "error"
+    store = copy_store(src, dst, on_corrupt=on_corrupt, overwrite=overwrite)
+    sys.stdout.write(f"{store.path}: {store.num_episodes} episodes, {store.num_frames} frames\n")
+    return 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    return _run(args.command, args.config_name, args.overrides)
+    configure_logging()
+    prog = f"vla-gr {args.command}"
+    if args.command == "store" and args.action == "verify":
+        return run_command(
+            f"{prog} verify", verify_store_command, args.path, not args.fast, verbose=args.verbose
+        )
+    if args.command == "store":
+        return run_command(
+            f"{prog} copy",
+            copy_store_command,
+            args.src,
+            args.dst,
+            args.skip_damaged,
+            args.overwrite,
+            verbose=args.verbose,
+        )
+    func = _resolve(COMMANDS[args.command][0])
+    return run_command(prog, func, args.config_name, args.overrides, verbose=args.verbose)
 
 
 if __name__ == "__main__":

@@ -126,6 +126,6 @@ def run_from_cli(config_name: str, overrides: Sequence[str]) -> int:
 
 
 if __name__ == "__main__":
-    from vla_gr.cli import module_main
+    from vla_gr.configs.command import module_main
 
-    sys.exit(module_main("demo"))
+    sys.exit(module_main("demo", run_from_cli))

@@ -1,87 +1,271 @@
-"""Closed-loop evaluation: run a policy on ``VLAGR/ObjectNav-v0`` episodes, average the metrics.
+"""``vla-gr eval``: closed-loop evaluation of any agent on any episodes.
 
-``rollout_policy`` is the loop habitat-lab / LeRobot eval scripts run: reset the env on an
-episode, reset the policy, feed each observation to ``policy.select_action`` until the episode
-terminates (STOP) or is truncated (step budget), keep the final ``info``. ``summarize``
-averages those infos with :func:`vla_gr.envs.metrics.aggregate`.
+``vla-gr eval [--config-name NAME] agent=<name> [checkpoint=<run>/checkpoints/best]
+split=val num_episodes=N | episodes=<file.jsonl> workers=W seed=S [output_dir=DIR]``
+(the bare keys are short for ``eval.<key>``). Writes to ``output_dir`` (default
+``outputs/eval/<agent>-<split>-<timestamp>``): ``episodes.jsonl`` (one row per episode,
+flushed as each finishes), ``metrics.json``, ``report.md`` with bar charts, top-down PNGs
+and GIFs. Run again with the same ``output_dir`` after a kill and it resumes: finished
+rows are read back, the rest run, and ``metrics.json`` equals an uninterrupted run's.
+``--config-name compare agents=[a,b]`` runs several agents on the same episodes and
+writes ``compare.md`` / ``compare.json``.
+
+``rollout_policy`` / ``summarize`` (from :mod:`vla_gr.evaluation.runner`, re-exported) are
+the library calls training's closed-loop validation uses: the same episode loop.
 """
 
 from __future__ import annotations
 
+import json
 import logging
+import sys
+import time
 from collections.abc import Sequence
+from pathlib import Path
 
-import numpy as np
-import torch
-from torch import nn
-
-from vla_gr.envs.metrics import aggregate
+from vla_gr.errors import UserError
+from vla_gr.evaluation.runner import rollout_policy, summarize
 
 log = logging.getLogger(__name__)
 
-__all__ = ["rollout_policy", "summarize"]
+__all__ = ["rollout_policy", "summarize", "evaluate", "compare", "run_from_cli"]
+
+#: Bare ``key=value`` overrides that mean ``eval.key=value``.
+EVAL_ALIASES = (
+    "agent",
+    "agents",
+    "checkpoint",
+    "split",
+    "episodes",
+    "num_episodes",
+    "first_episode",
+    "workers",
+    "output_dir",
+    "device",
+)
+DEFAULT_SPLIT_EPISODES = 10
 
 
-def _as_env_action(action) -> np.ndarray:
-    """A policy action ``(1, A)`` or ``(A,)`` (tensor or array) -> float32 numpy ``(A,)``."""
-    if isinstance(action, torch.Tensor):
-        action = action.detach().float().cpu().numpy()
-    action = np.asarray(action, dtype=np.float32)
-    if action.ndim == 2 and action.shape[0] == 1:
-        action = action[0]  # (A,)
-    if action.ndim != 1:
-        raise ValueError(f"policy action must be (A,) or (1, A); got shape {action.shape}")
-    return action
+class EvalInputError(UserError, ValueError):
+    """Bad input found before any episode runs (one line, naming the key or file)."""
 
 
-def rollout_policy(
-    policy,
-    env_kwargs: dict,
-    episodes: Sequence[int],
-    device: torch.device | str = "cpu",
-) -> list[dict]:
-    """Run ``policy`` on each episode index of ``episodes``; one final info dict per episode.
+# ----------------------------------------------------------------------------- the command
 
-    ``policy`` needs ``reset()`` and ``select_action(obs) -> (1, A)``; an ``nn.Module`` is
-    moved to ``device`` and put in eval mode for the rollout (its train/eval mode is restored
-    afterwards). ``env_kwargs`` go to ``gymnasium.make("VLAGR/ObjectNav-v0", ...)``
-    (``max_episode_steps`` is the step budget). Episode ``k`` is ``env.reset(seed=k)``.
-    """
+
+def expand_aliases(overrides: Sequence[str]) -> list[str]:
+    """``agent=x`` -> ``eval.agent=x`` for the keys of ``EVAL_ALIASES``; others unchanged."""
+    out = []
+    for item in overrides:
+        key = item.split("=", 1)[0]
+        out.append(f"eval.{item}" if key in EVAL_ALIASES else item)
+    return out
+
+
+def plan_episodes(cfg) -> tuple[list[int], dict, str]:
+    """(episode indices, env kwargs, source name) of an eval config; EvalInputError if bad."""
+    from vla_gr.data.collect import env_kwargs_from_config
+    from vla_gr.envs.episodes import EPISODES_PER_SCENE, load_episodes
+    from vla_gr.envs.house import SPLIT_SIZE
+
+    e = cfg.eval
+    env_kwargs = env_kwargs_from_config(cfg, e.split, semantic=True)
+    env_kwargs.pop("episodes", None)
+    if e.episodes:
+        try:
+            size = len(load_episodes(e.episodes))
+        except ValueError as err:
+            raise EvalInputError(str(err)) from None
+        env_kwargs["episodes"] = str(e.episodes)
+        source, what = str(e.episodes), f"episodes file {e.episodes}"
+    else:
+        size = SPLIT_SIZE * EPISODES_PER_SCENE
+        source, what = e.split, f"split {e.split!r}"
+    num = e.num_episodes or (size - e.first_episode if e.episodes else DEFAULT_SPLIT_EPISODES)
+    if e.first_episode + num > size:
+        raise EvalInputError(
+            f"eval.first_episode={e.first_episode} + eval.num_episodes={num} exceeds the "
+            f"{size} episodes of {what}"
+        )
+    return list(range(e.first_episode, e.first_episode + num)), env_kwargs, source
+
+
+def run_header(cfg, agent: str, source: str, indices: Sequence[int]) -> dict:
+    """The settings that define an eval run (saved as ``run.json``; compared on resume)."""
+    from vla_gr import __version__
+
+    e, env = cfg.eval, cfg.env
+    return {
+        "agent": agent,
+        "checkpoint": e.checkpoint if agent == "checkpoint" else None,
+        "episodes_source": source,
+        "first_episode": indices[0],
+        "num_episodes": len(indices),
+        "seed": cfg.seed,
+        "env": {
+            "image_size": env.image_size,
+            "control_hz": env.control_hz,
+            "max_episode_steps": env.max_episode_steps,
+            "success_distance": env.success_distance,
+            "max_depth": env.max_depth,
+            "depth_noise_std": env.depth_noise_std,
+            "actuation_noise": env.actuation_noise,
+        },
+        "thresholds": {
+            "goal_seen_pixels": e.goal_seen_pixels,
+            "stuck_steps": e.stuck_steps,
+            "stuck_radius": e.stuck_radius,
+        },
+        "vla_gr_version": __version__,
+    }
+
+
+def default_agent(cfg) -> str:
+    """``eval.agent``, else ``checkpoint`` when ``eval.checkpoint`` is given, else ``expert``."""
+    return cfg.eval.agent or ("checkpoint" if cfg.eval.checkpoint else "expert")
+
+
+def check_agent(cfg, agent: str) -> None:
+    """Refuse an unknown agent or an unusable checkpoint before any episode runs."""
+    from vla_gr.evaluation.agents import AgentError, check_agent_name, check_checkpoint
+
+    check_agent_name(agent)
+    if agent == "checkpoint":
+        from vla_gr.checkpoint import CheckpointError
+        from vla_gr.policy import VLAGRPolicy
+
+        check_checkpoint(cfg)
+        try:
+            VLAGRPolicy.from_pretrained(cfg.eval.checkpoint)
+        except CheckpointError as err:
+            raise AgentError(str(err)) from None
+
+
+def _output_dir(cfg, agent: str, source: str) -> Path:
+    if cfg.eval.output_dir:
+        return Path(cfg.eval.output_dir)
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    return Path("outputs/eval") / f"{agent}-{Path(source).stem}-{stamp}"
+
+
+def _resume_rows(out_dir: Path, header: dict, indices: Sequence[int]) -> list[dict]:
+    """Finished rows of an earlier run of the same settings in ``out_dir`` (else [])."""
+    from vla_gr.evaluation.runner import read_rows
+
+    run_file = out_dir / "run.json"
+    if not run_file.is_file():
+        return []
+    old = json.loads(run_file.read_text())
+    changed = [k for k in header if old.get(k) != header[k] and k != "num_episodes"]
+    if changed:
+        key = changed[0]
+        raise EvalInputError(
+            f"output folder {out_dir} holds a run with {key}={old.get(key)!r}, this one has "
+            f"{key}={header[key]!r}; pass another output_dir"
+        )
+    wanted = set(indices)
+    rows = [r for r in read_rows(out_dir / "episodes.jsonl") if r["episode_index"] in wanted]
+    if rows:
+        log.info("resuming %s: %d of %d episodes already done", out_dir, len(rows), len(indices))
+    return rows
+
+
+def evaluate(cfg, agent: str | None = None) -> dict:
+    """Run one agent's evaluation for a validated ``VLAGRConfig``; returns metrics.json."""
+    from tqdm import tqdm
+
     from vla_gr.data.collect import make_env
+    from vla_gr.evaluation.report import replay_pictures, select_episodes, write_report
+    from vla_gr.evaluation.runner import RowWriter, iter_episode_rows
+    from vla_gr.evaluation.summary import summarize_rows
 
-    if len(episodes) == 0:
-        raise ValueError("episodes must name at least one episode index")
-    is_module = isinstance(policy, nn.Module)
-    was_training = policy.training if is_module else False
-    if is_module:
-        policy.to(device).eval()
-    env = make_env(dict(env_kwargs))
-    infos: list[dict] = []
+    agent = agent or default_agent(cfg)
+    check_agent(cfg, agent)
+    indices, env_kwargs, source = plan_episodes(cfg)
+    header = run_header(cfg, agent, source, indices)
+    out_dir = _output_dir(cfg, agent, source)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    done = {r["episode_index"]: r for r in _resume_rows(out_dir, header, indices)}
+    (out_dir / "run.json").write_text(json.dumps(header, indent=1))
+    writer = RowWriter(out_dir / "episodes.jsonl", list(done.values()))
+    todo = [k for k in indices if k not in done]
+    t0 = time.perf_counter()
+    successes = sum(r["metrics"]["success"] for r in done.values())
+    bar = tqdm(
+        total=len(indices), initial=len(done), desc=f"eval {agent}", unit="ep",
+        disable=not cfg.eval.progress,
+    )  # fmt: skip
     try:
-        with torch.inference_mode():
-            for k in episodes:
-                obs, info = env.reset(seed=int(k))
-                policy.reset()
-                done = False
-                while not done:
-                    action = _as_env_action(policy.select_action(obs))  # (A,)
-                    obs, _, terminated, truncated, info = env.step(action)
-                    done = terminated or truncated
-                infos.append(dict(info, episode_index=int(k)))
-                log.debug(
-                    "episode %d: success %.0f spl %.3f in %d steps",
-                    k,
-                    info["success"],
-                    info["spl"],
-                    info["steps"],
-                )
+        with bar:
+            for row in iter_episode_rows(cfg, agent, env_kwargs, todo, cfg.eval.workers):
+                writer.write(row)
+                done[row["episode_index"]] = row
+                successes += row["metrics"]["success"]
+                bar.update(1)
+                bar.set_postfix(SR=f"{successes / len(done):.2f}")
     finally:
-        env.close()
-        if is_module:
-            policy.train(was_training)
-    return infos
+        writer.close()
+    rows = [done[k] for k in indices]
+    seconds = time.perf_counter() - t0
+    metrics = summarize_rows(rows, header, seconds, cfg.eval.workers, ran=len(todo))
+    (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=1))
+    chosen = select_episodes(rows, cfg.eval.gif_successes, cfg.eval.gif_per_cause)
+    pictures = {}
+    if chosen:
+        env = make_env({**env_kwargs, "semantic": False})
+        try:
+            for row in chosen:
+                pictures[row["episode_index"]] = replay_pictures(
+                    env, row, out_dir, cfg.eval.gif_image_size, cfg.eval.gif_stride
+                )
+        finally:
+            env.close()
+    write_report(out_dir, metrics, rows, pictures)
+    log.info("wrote %s (metrics.json, episodes.jsonl, report.md)", out_dir)
+    return metrics
 
 
-def summarize(infos: Sequence[dict]) -> dict:
-    """Mean success, SPL, soft-SPL, collision rate, path length, final distance; ``episodes``."""
-    return aggregate(infos)
+def compare(cfg) -> dict:
+    """Run every agent of ``eval.agents`` on the same episodes; write compare.md/json."""
+    import dataclasses
+
+    from vla_gr.envs.metrics import format_table
+    from vla_gr.evaluation.report import table_row
+
+    agents = list(cfg.eval.agents)
+    for agent in agents:  # every input error before the first episode
+        check_agent(cfg, agent)
+    _, _, source = plan_episodes(cfg)
+    out_dir = _output_dir(cfg, "compare", source)
+    rows = {}
+    for agent in agents:
+        sub = dataclasses.replace(cfg.eval, output_dir=str(out_dir / agent))
+        metrics = evaluate(dataclasses.replace(cfg, eval=sub), agent)
+        rows[agent] = table_row(metrics)
+    table = format_table(rows)
+    (out_dir / "compare.json").write_text(json.dumps(rows, indent=1))
+    (out_dir / "compare.md").write_text(f"# Comparison on {source}\n\n{table}\n")
+    return {"output_dir": str(out_dir), "table": table, "rows": rows}
+
+
+def run_from_cli(config_name: str, overrides: Sequence[str]) -> int:
+    """``vla-gr eval [--config-name NAME] [key=value ...]``; returns the exit code."""
+    from vla_gr.configs import load_config
+    from vla_gr.envs.metrics import format_table
+    from vla_gr.evaluation.report import table_row
+
+    _, cfg = load_config(config_name, expand_aliases(overrides))
+    if cfg.eval.agents:
+        table = compare(cfg)["table"]
+    else:
+        metrics = evaluate(cfg)
+        table = format_table({metrics["agent"]: table_row(metrics)})
+    sys.stdout.write(table + "\n")
+    sys.stdout.flush()
+    return 0
+
+
+if __name__ == "__main__":
+    from vla_gr.configs.command import module_main
+
+    sys.exit(module_main("evaluate", run_from_cli))

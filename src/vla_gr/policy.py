@@ -15,7 +15,8 @@ statistics, kept as buffers so that they travel with the weights.
 
 Context tokens (width D): one instruction token, T pose tokens and T*K image tokens, each
 with a type and an observation-step embedding, mixed by ``fusion_layers`` transformer
-blocks. The GR field and the dual system plug in later as further context tokens.
+blocks, then decoded by the action head (``model.head``). The GR field and the dual system
+(``model.gr_field``, ``model.dual_system``) are not composed into the agent yet.
 """
 
 from __future__ import annotations
@@ -28,6 +29,7 @@ import torch
 from torch import nn
 from torch.utils.checkpoint import checkpoint
 
+from vla_gr.checkpoint import load_model_state, read_checkpoint
 from vla_gr.configs.model_schema import ModelConfig
 from vla_gr.core.diffusion_policy import DiffusionPolicy
 from vla_gr.core.encoders import PoseEncoder, RGBDEncoder, build_text_encoder, pose_features
@@ -46,37 +48,25 @@ class VLAGRPolicy(nn.Module):
     def __init__(self, config: ModelConfig) -> None:
         super().__init__()
         self.config = c = config
+        e = c.encoders
         self.vision = RGBDEncoder(
-            channels=c.vision_channels,
-            dim=c.dim,
-            pool=c.vision_pool,
-            num_tokens=c.vision_tokens,
-            max_depth=c.max_depth,
-            gradient_checkpointing=c.gradient_checkpointing,
+            channels=e.vision_channels,
+            dim=e.dim,
+            pool=e.vision_pool,
+            num_tokens=e.vision_tokens,
+            max_depth=e.max_depth,
+            gradient_checkpointing=e.gradient_checkpointing,
         )
-        self.text = build_text_encoder(c.text_encoder, c.dim, c.text_buckets)
-        self.pose = PoseEncoder(c.dim, c.pose_hidden)
-        self.step_embed = nn.Parameter(torch.randn(c.n_obs_steps, c.dim) * 0.02)  # (T, D)
-        self.type_embed = nn.Parameter(torch.randn(3, c.dim) * 0.02)  # text, pose, image
+        self.text = build_text_encoder(e.text_encoder, e.dim, e.text_buckets)
+        self.pose = PoseEncoder(e.dim, e.pose_hidden)
+        self.step_embed = nn.Parameter(torch.randn(c.n_obs_steps, e.dim) * 0.02)  # (T, D)
+        self.type_embed = nn.Parameter(torch.randn(3, e.dim) * 0.02)  # text, pose, image
         self.fusion = nn.ModuleList(
-            TransformerBlock(c.dim, c.fusion_heads, dropout=c.dropout, use_rope=False)
-            for _ in range(c.fusion_layers)
+            TransformerBlock(e.dim, e.fusion_heads, dropout=e.dropout, use_rope=False)
+            for _ in range(e.fusion_layers)
         )
-        self.fusion_norm = nn.LayerNorm(c.dim)
-        self.head = DiffusionPolicy(
-            action_dim=c.action_dim,
-            hidden_dim=c.hidden_dim,
-            context_dim=c.dim,
-            num_diffusion_steps=c.num_diffusion_steps,
-            prediction_type=c.prediction_type,
-            objective=c.objective,
-            horizon=c.horizon,
-            denoiser=c.denoiser,
-            num_layers=c.head_layers,
-            num_heads=c.head_heads,
-            dropout=c.dropout,
-            gradient_checkpointing=c.gradient_checkpointing,
-        )
+        self.fusion_norm = nn.LayerNorm(e.dim)
+        self.head = DiffusionPolicy(config=c.head)
         # Min-max normalisers (identity until set_normalization); saved with the weights.
         self.register_buffer("action_scale", torch.ones(c.action_dim))
         self.register_buffer("action_offset", torch.zeros(c.action_dim))
@@ -95,8 +85,6 @@ class VLAGRPolicy(nn.Module):
         (the EMA averages when training used EMA). Returned in eval mode.
         """
         from omegaconf import OmegaConf
-
-        from vla_gr.training.checkpoint import load_model_state, read_checkpoint
 
         loaded = read_checkpoint(path)
         saved = OmegaConf.create(loaded.config_yaml)
@@ -138,9 +126,7 @@ class VLAGRPolicy(nn.Module):
     def encode_observations(self, batch: Mapping) -> torch.Tensor:
         """Context tokens ``(B, 1 + T + T*K, D)`` from a batch of observation histories."""
         rgb, depth, pose = batch["rgb"], batch["depth"], batch["pose"]  # (B,T,3,H,W) ...
-        instructions = batch["instruction"]
-        if isinstance(instructions, str):
-            instructions = [instructions]
+        instructions = as_instructions(batch["instruction"], "batch['instruction']")
         if rgb.dim() != 5:
             raise ValueError(f"batch['rgb'] must be (B, T, 3, H, W); got {tuple(rgb.shape)}")
         B, T = rgb.shape[:2]
@@ -155,10 +141,14 @@ class VLAGRPolicy(nn.Module):
         img = img.flatten(1, 2) + self.type_embed[2]  # (B, T*K, D)
         feats = pose_features(pose.float(), self.pose_scale, self.pose_offset)  # (B, T, 4)
         pos = self.pose(feats) + self.step_embed + self.type_embed[1]  # (B, T, D)
-        txt = self.text(list(instructions)).unsqueeze(1) + self.type_embed[0]  # (B, 1, D)
+        txt = self.text(instructions).unsqueeze(1) + self.type_embed[0]  # (B, 1, D)
         tokens = torch.cat([txt.to(img.dtype), pos.to(img.dtype), img], dim=1)  # (B, S, D)
         for block in self.fusion:
-            if self.config.gradient_checkpointing and self.training and torch.is_grad_enabled():
+            if (
+                self.config.encoders.gradient_checkpointing
+                and self.training
+                and torch.is_grad_enabled()
+            ):
                 tokens = checkpoint(block, tokens, use_reentrant=False)
             else:
                 tokens = block(tokens)  # (B, S, D)
@@ -189,11 +179,7 @@ class VLAGRPolicy(nn.Module):
     def predict_action_chunk(self, obs: Mapping) -> torch.Tensor:
         """Raw actions ``(B, horizon, A)`` in ``[-1, 1]`` for a batch of observation histories."""
         context = self.encode_observations(obs)  # (B, S, D)
-        chunk = self.head.get_action(
-            context,
-            num_inference_steps=self.config.num_inference_steps,
-            sampler=None if self.config.objective == "l1" else self.config.sampler,
-        )  # (B, H, A)
+        chunk = self.head.get_action(context)  # (B, H, A), sampler and steps from model.head
         return self.unnormalize_action(chunk).clamp(-1.0, 1.0)  # (B, H, A)
 
     def reset(self) -> None:
@@ -253,6 +239,29 @@ def apply_peft(model: nn.Module, peft) -> nn.Module:
     return model
 
 
+def as_instructions(value, name: str = "instruction") -> list[str]:
+    """``value`` (one string, or a sequence / array of strings) as a list of strings.
+
+    Raises ``TypeError`` naming ``name`` for anything else (None, bytes, non-string items),
+    which would otherwise be turned into text such as ``"None"`` or fail deep inside.
+    """
+    if isinstance(value, str):
+        return [value]
+    if (
+        value is None
+        or isinstance(value, (bytes, bytearray, Mapping))
+        or not isinstance(value, (Sequence, np.ndarray))
+    ):
+        raise TypeError(f"{name} must be a string or a list of strings, got {type(value).__name__}")
+    bad = [s for s in value if not isinstance(s, str)]
+    if bad:
+        raise TypeError(
+            f"{name} must be a string or a list of strings; it holds a "
+            f"{type(bad[0]).__name__}: {bad[0]!r}"
+        )
+    return [str(s) for s in value]
+
+
 def env_obs_to_frame(obs: Mapping, device: torch.device | str = "cpu") -> dict:
     """Environment observation (single or batched) -> one policy frame.
 
@@ -271,8 +280,7 @@ def env_obs_to_frame(obs: Mapping, device: torch.device | str = "cpu") -> dict:
     pose = torch.as_tensor(np.asarray(obs["pose"]), dtype=torch.float32)
     if not batched:
         depth, pose = depth[None], pose[None]  # (1, H, W, 1), (1, 3)
-    instruction = obs["instruction"]
-    instructions = [instruction] if isinstance(instruction, str) else [str(s) for s in instruction]
+    instructions = as_instructions(obs["instruction"], "obs['instruction']")
     if len(instructions) != rgb.shape[0]:
         raise ValueError(f"{rgb.shape[0]} observations but {len(instructions)} instructions")
     rgb = (

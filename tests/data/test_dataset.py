@@ -67,7 +67,7 @@ def test_edges_repeat_first_and_last_frame(store_path):
     assert first["pose"][:, 0].tolist() == [0, 0, 0, 0]
     assert first["rgb"].dtype == torch.uint8 and first["rgb"][:, 0, 0, 0].tolist() == [0] * 4
     last = ds[LENGTHS[0] - 1]  # episode 0, t=4: chunk is 4 then the last frame repeated
-    assert last["action"][:, 0].tolist() == [4, 4, 4, 4, 4, 4]
+    assert (last["action"][:, 0] * 256).tolist() == [4, 4, 4, 4, 4, 4]
     assert last["action_is_pad"].tolist() == [False] + [True] * 5
     one = ds[LENGTHS[0]]  # the one-step episode
     assert one["obs_is_pad"].tolist() == [True, True, True, False]

@@ -34,7 +34,7 @@ def test_round_trip_and_layout(tmp_path):
     g = zarr.open_group(str(path), mode="r")
     assert g["data/rgb"].shape == (15, 8, 8, 3) and g["data/goal_mask"].dtype == bool
     assert g["data/rgb"].compressors  # compressed
-    assert g.attrs["format_version"] == 1
+    assert g.attrs["format_version"] == 2
 
 
 def test_record_validates_shapes():

@@ -33,3 +33,20 @@ def test_goal_distance_is_distance_to_footprint_edge():
 def test_missing_goal_raises():
     with pytest.raises(ValueError, match="no footprint"):
         goal_distance_field(_room_with_box(), 7)
+
+
+def test_distance_inside_the_inflated_margin_snaps_to_the_nearest_navigable_cell():
+    from vla_gr.envs.geodesic import distance_at
+
+    house = _room_with_box()
+    field = goal_distance_field(house, 1)  # (H, W)
+    x, y = 0.16, 2.0  # centre closer to the left wall than the robot radius
+    assert np.isinf(sample_field(field, house.grid, x, y))
+    snapped = distance_at(field, house.grid, x, y)
+    assert np.isfinite(snapped)
+    # the nearest navigable cell lies just right of the margin, at the same height
+    edge = next(c for c in range(80) if np.isfinite(field[40, c]))
+    assert snapped == pytest.approx(field[40, edge], abs=0.06)
+    # where the sample is finite, nothing changes
+    assert distance_at(field, house.grid, 3.0, 2.0) == sample_field(field, house.grid, 3.0, 2.0)
+    assert np.isinf(distance_at(np.full((80, 80), np.inf), house.grid, x, y))

@@ -308,6 +308,25 @@ def test_split_reset_seed_is_deterministic():
     b.close()
 
 
+@pytest.mark.parametrize("bad", [-1, 2**40, 1.5, "0", None])
+def test_failed_reset_leaves_the_env_usable(bad):
+    """After a bad first reset the next valid reset + step work; errors quote the input."""
+    env = gym.make(ENV_ID, image_size=32)
+    if bad is None:  # a failed reset of another kind: unknown options
+        with pytest.raises(ValueError, match="unknown reset options"):
+            env.reset(seed=0, options={"nope": 1})
+    else:
+        with pytest.raises((ValueError, TypeError), match=f"seed[ =].*{bad!r}"):
+            env.reset(seed=bad)
+    with pytest.raises(RuntimeError, match="before reset"):
+        env.step(np.zeros(3, np.float32))
+    obs, info = env.reset(seed=0)
+    assert info["episode_id"] == "val-000000"
+    obs, _, terminated, truncated, info = env.step(np.array([0.5, 0.0, -1.0], np.float32))
+    assert obs["rgb"].shape == (32, 32, 3) and not terminated and info["steps"] == 1
+    env.close()
+
+
 # ----------------------------------------------------------------------------- vector envs
 
 
@@ -333,3 +352,53 @@ def test_vector_envs_step(mode, tmp_path):
         assert not term.any() and not trunc.any()
     finally:
         vec.close()
+
+
+def test_distance_to_goal_stays_finite_inside_the_inflated_margin(env, room):
+    from vla_gr.envs import robot as rb
+    from vla_gr.envs.geodesic import distance_at
+
+    run_room(env, room, room_spec(1.0, 1.0, 0.0))
+    u = env.unwrapped
+    grid, field = room.grid, u.goal_distance  # (H, W)
+    # a free cell (no obstacle) whose whole neighbourhood is in the margin: inf distance
+    inf_free = [
+        (r, c)
+        for r, c in zip(*np.nonzero(~room.occupancy & ~u.traversable))
+        if np.isinf(field[r - 1 : r + 2, c - 1 : c + 2]).all()
+    ]
+    assert inf_free
+    x, y = grid.cell_to_world(np.array(inf_free[0]))
+    assert np.isinf(sample_field(field, grid, x, y))
+    s = u._scene
+    rb.set_robot_pose(s.model, s.data, s.robot, np.array([x, y, 0.0]))
+    _, _, _, _, info = env.step(np.array([0.0, 0.0, 1.0], np.float32))  # STOP there
+    assert np.isfinite(info["distance_to_goal"])
+    assert info["distance_to_goal"] == pytest.approx(distance_at(field, grid, x, y))
+    assert np.isfinite(info["soft_spl"])
+
+
+def test_noise_options_are_off_by_default_and_replay_per_seeded_episode():
+    def run(**kw):
+        e = gym.make(ENV_ID, split="val", image_size=16, **kw)
+        try:
+            obs, _ = e.reset(seed=0)
+            depths = [obs["depth"]]
+            for _ in range(5):
+                obs, *_ = e.step(np.array([1.0, 0.5, -1.0], np.float32))
+                depths.append(obs["depth"])
+            return np.stack(depths), e.unwrapped.robot_pose_world()
+        finally:
+            e.close()
+
+    clean_depth, clean_pose = run()
+    again_depth, again_pose = run(depth_noise_std=0.0, actuation_noise=0.0)
+    np.testing.assert_array_equal(clean_depth, again_depth)
+    noisy_depth, noisy_pose = run(depth_noise_std=0.05, actuation_noise=0.3)
+    replay_depth, replay_pose = run(depth_noise_std=0.05, actuation_noise=0.3)
+    np.testing.assert_array_equal(noisy_depth, replay_depth)  # seeded by reset(seed=k)
+    np.testing.assert_array_equal(noisy_pose, replay_pose)
+    assert 0.02 < np.std(noisy_depth[0] - clean_depth[0]) < 0.08
+    assert not np.allclose(noisy_pose, clean_pose)
+    with pytest.raises(ValueError, match="depth_noise_std"):
+        gym.make(ENV_ID, depth_noise_std=-1.0)

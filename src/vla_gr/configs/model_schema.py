@@ -1,23 +1,31 @@
-"""Structured config of the navigation agent (``model.*``): encoders, action head, PEFT."""
+"""Structured config of the navigation agent (``model.*``).
+
+Nests one config per component; each lives beside its component in ``vla_gr.core``
+(``model.encoders``: :mod:`vla_gr.core.encoders.config`, ``model.head``:
+:mod:`vla_gr.core.diffusion_policy.config`, ``model.gr_field``:
+:mod:`vla_gr.core.gr_field.config`, ``model.dual_system``:
+:mod:`vla_gr.core.dual_system.config`), so the defaults are written once.
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
-from vla_gr.configs.validation import check_choice, check_positive
+from vla_gr.core.diffusion_policy.config import HeadConfig
+from vla_gr.core.dual_system.config import DualSystemConfig
+from vla_gr.core.encoders.config import EncodersConfig
+from vla_gr.core.gr_field.config import GRFieldConfig
+from vla_gr.validation import check_choice, check_positive
 
-TEXT_ENCODERS = ("hashed", "minilm")
-VISION_POOLS = ("grid", "spatial_softmax")
-OBJECTIVES = ("flow_matching", "diffusion", "l1")
-DENOISERS = ("unet1d", "transformer")
-PREDICTION_TYPES = ("epsilon", "sample", "v_prediction")
-SAMPLERS = {
-    "flow_matching": ("euler", "midpoint"),
-    "diffusion": ("ddim", "ddpm"),
-    "l1": ("none", "euler", "midpoint", "ddim", "ddpm"),
-}
 PEFT_METHODS = ("lora", "oft", "adapter")
 FREEZABLE = ("vision", "text", "pose", "fusion", "head")
+#: Component fields that follow a model key (``(component, field) -> key``).
+FOLLOWS = {
+    ("head", "action_dim"): "action_dim",
+    ("head", "horizon"): "horizon",
+    ("head", "context_dim"): "encoders.dim",
+    ("dual_system", "action_dim"): "action_dim",
+}
 
 
 @dataclass
@@ -49,43 +57,30 @@ class PeftConfig:
 
 @dataclass
 class ModelConfig:
-    """The agent: RGB-D CNN + instruction encoder + pose MLP -> tokens -> action head."""
+    """The agent: observation layout, one config per component, freezing and PEFT.
 
-    # Observation / action layout (LeRobot names).
+    The fields in ``FOLLOWS`` (``head.action_dim``, ``head.horizon``, ``head.context_dim``,
+    ``dual_system.action_dim``) follow the model's keys (set those); setting them to
+    something else fails.
+    ``gr_field`` and ``dual_system`` configure components that ``VLAGRPolicy`` does not
+    compose yet.
+    """
+
+    # Observation / action layout (LeRobot names), shared with the training windows.
     n_obs_steps: int = 2
     horizon: int = 16
     n_action_steps: int = 8
-    action_dim: int = 3
+    action_dim: int = 3  # the world's action: (linear, angular, stop)
     image_size: int = 64
-    # Encoders.
-    dim: int = 128  # width D of every context token
-    vision_channels: list[int] = field(default_factory=lambda: [32, 64, 64])
-    vision_pool: str = "grid"
-    vision_tokens: int = 4  # grid: tokens per frame (a square); spatial_softmax: keypoints
-    max_depth: float = 10.0  # metres; depth is clipped and scaled to [0, 1]
-    text_encoder: str = "hashed"
-    text_buckets: int = 4096  # hashed bag-of-words vocabulary
-    pose_hidden: int = 64
-    fusion_layers: int = 1  # transformer blocks over the context tokens (0 = none)
-    fusion_heads: int = 4
-    dropout: float = 0.0
-    # Action head (core.diffusion_policy.DiffusionPolicy).
-    objective: str = "flow_matching"
-    denoiser: str = "unet1d"
-    hidden_dim: int = 128
-    head_layers: int = 2  # transformer denoiser / L1 head blocks
-    head_heads: int = 4
-    num_diffusion_steps: int = 100
-    prediction_type: str = "epsilon"
-    num_inference_steps: int = 5
-    sampler: str = "euler"  # flow_matching: euler | midpoint; diffusion: ddim | ddpm; l1: none
-    # Memory / fine-tuning.
-    gradient_checkpointing: bool = False
+    encoders: EncodersConfig = field(default_factory=EncodersConfig)
+    head: HeadConfig = field(default_factory=HeadConfig)
+    gr_field: GRFieldConfig = field(default_factory=GRFieldConfig)
+    dual_system: DualSystemConfig = field(default_factory=DualSystemConfig)
     freeze: list[str] = field(default_factory=list)  # submodules whose weights stay fixed
     peft: PeftConfig = field(default_factory=PeftConfig)
 
     def __post_init__(self) -> None:
-        for key in ("n_obs_steps", "horizon", "n_action_steps", "action_dim", "dim"):
+        for key in ("n_obs_steps", "horizon", "n_action_steps", "action_dim"):
             check_positive(f"model.{key}", getattr(self, key))
         if self.n_action_steps > self.horizon:
             raise ValueError(
@@ -94,40 +89,25 @@ class ModelConfig:
             )
         if not 16 <= self.image_size <= 512:
             raise ValueError(f"model.image_size={self.image_size} must be in [16, 512]")
-        if not self.vision_channels or min(self.vision_channels) < 1:
-            raise ValueError(
-                f"model.vision_channels={self.vision_channels} must be a non-empty "
-                "list of positive widths"
-            )
-        check_choice("model.vision_pool", self.vision_pool, VISION_POOLS)
-        check_positive("model.vision_tokens", self.vision_tokens)
-        if self.vision_pool == "grid" and int(self.vision_tokens**0.5) ** 2 != self.vision_tokens:
-            raise ValueError(
-                f"model.vision_tokens={self.vision_tokens} must be a square (1, 4, 9, ...) "
-                "with model.vision_pool=grid"
-            )
-        check_positive("model.max_depth", self.max_depth)
-        check_choice("model.text_encoder", self.text_encoder, TEXT_ENCODERS)
-        check_positive("model.text_buckets", self.text_buckets)
-        check_positive("model.pose_hidden", self.pose_hidden)
-        check_positive("model.fusion_layers", self.fusion_layers, allow_zero=True)
-        check_positive("model.fusion_heads", self.fusion_heads)
-        if self.dim % self.fusion_heads:
-            raise ValueError(
-                f"model.dim={self.dim} must be divisible by model.fusion_heads={self.fusion_heads}"
-            )
-        if not 0.0 <= self.dropout < 1.0:
-            raise ValueError(f"model.dropout={self.dropout} must be in [0, 1)")
-        check_choice("model.objective", self.objective, OBJECTIVES)
-        check_choice("model.denoiser", self.denoiser, DENOISERS)
-        check_positive("model.hidden_dim", self.hidden_dim)
-        check_positive("model.num_diffusion_steps", self.num_diffusion_steps)
-        check_choice("model.prediction_type", self.prediction_type, PREDICTION_TYPES)
-        check_positive("model.num_inference_steps", self.num_inference_steps)
-        check_positive("model.head_layers", self.head_layers)
-        check_positive("model.head_heads", self.head_heads)
-        check_choice(
-            f"model.sampler (objective {self.objective})", self.sampler, SAMPLERS[self.objective]
-        )
         for name in self.freeze:
             check_choice("model.freeze[]", name, FREEZABLE)
+        for (component, attr), key in FOLLOWS.items():
+            setattr(self, component, _follow(self, component, attr, key))
+
+
+def _follow(model: ModelConfig, component: str, attr: str, key: str):
+    """``model.<component>`` with ``attr`` set to ``model.<key>``.
+
+    A field left at its default follows the model; one set to another value is an error.
+    """
+    config = getattr(model, component)
+    value = model
+    for part in key.split("."):
+        value = getattr(value, part)
+    current = getattr(config, attr)
+    if current not in (value, getattr(type(config)(), attr)):
+        raise ValueError(
+            f"model.{component}.{attr}={current} contradicts model.{key}={value}; "
+            f"set model.{key} instead"
+        )
+    return replace(config, **{attr: value})

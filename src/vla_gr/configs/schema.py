@@ -10,10 +10,12 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from hydra.core.config_store import ConfigStore
+from omegaconf import OmegaConf
 
-from vla_gr.configs.model_schema import ModelConfig
+from vla_gr.configs.model_schema import FOLLOWS, ModelConfig
 from vla_gr.configs.training_schema import LoggingConfig, TrainingConfig
-from vla_gr.configs.validation import check_choice, check_positive
+from vla_gr.geometry.robot_spec import MAX_DEPTH
+from vla_gr.validation import check_choice, check_positive
 
 SPLITS = ("train", "val", "test")
 
@@ -29,13 +31,17 @@ class EnvConfig:
     success_distance: float = 1.0
     semantic: bool = False
     episodes: str | None = None  # optional JSONL file of episode specs
-    max_depth: float = 10.0  # depth readings are clipped to [0, max_depth] metres
+    max_depth: float = MAX_DEPTH  # depth readings are clipped to [0, max_depth] metres
     num_rooms: int | None = None  # house size knob (None: the generator draws 2-5)
     clutter: float = 1.0  # furniture density knob of the house generator
     scene_cache_size: int = 4  # compiled houses kept per env (LRU)
+    depth_noise_std: float = 0.0  # robustness: Gaussian depth noise per pixel (m); 0 = off
+    actuation_noise: float = 0.0  # robustness: relative noise per step on v and w; 0 = off
 
     def __post_init__(self) -> None:
         check_choice("env.split", self.split, SPLITS)
+        check_positive("env.depth_noise_std", self.depth_noise_std, allow_zero=True)
+        check_positive("env.actuation_noise", self.actuation_noise, allow_zero=True)
         check_positive("env.max_depth", self.max_depth)
         if self.num_rooms is not None and not 1 <= self.num_rooms <= 6:
             raise ValueError(f"env.num_rooms={self.num_rooms} must be None or in [1, 6]")
@@ -107,6 +113,46 @@ class DemoConfig:
 
 
 @dataclass
+class EvalConfig:
+    """``vla-gr eval``: closed-loop evaluation of an agent (or several: ``agents``)."""
+
+    agent: str | None = None  # name in vla_gr.evaluation.AGENTS (None: checkpoint if given)
+    agents: list[str] = field(default_factory=list)  # non-empty: compare these agents
+    checkpoint: str | None = None  # for agent=checkpoint: <run>/checkpoints/best
+    split: str = "val"
+    episodes: str | None = None  # JSONL file of episode specs (instead of the split)
+    num_episodes: int | None = None  # None: 10 of a split, or the whole episodes file
+    first_episode: int = 0
+    workers: int = 1
+    output_dir: str | None = None  # None: outputs/eval/<agent>-<split>-<timestamp>
+    device: str = "cpu"
+    progress: bool = True
+    goal_seen_pixels: int = 20  # goal instance "seen" when it covers >= this many pixels
+    stuck_steps: int = 50  # "stuck": moved < stuck_radius over the last stuck_steps steps
+    stuck_radius: float = 0.3  # metres
+    gif_successes: int = 2  # GIFs of the first few successes ...
+    gif_per_cause: int = 1  # ... and of the first episodes of each failure cause
+    gif_image_size: int = 96
+    gif_stride: int = 2
+
+    def __post_init__(self) -> None:
+        check_choice("eval.split", self.split, SPLITS)
+        if self.num_episodes is not None:
+            check_positive("eval.num_episodes", self.num_episodes)
+        check_positive("eval.first_episode", self.first_episode, allow_zero=True)
+        if self.workers < 1:
+            raise ValueError(f"eval.workers={self.workers} must be >= 1")
+        check_positive("eval.goal_seen_pixels", self.goal_seen_pixels)
+        check_positive("eval.stuck_steps", self.stuck_steps)
+        check_positive("eval.stuck_radius", self.stuck_radius)
+        check_positive("eval.gif_successes", self.gif_successes, allow_zero=True)
+        check_positive("eval.gif_per_cause", self.gif_per_cause, allow_zero=True)
+        if not 16 <= self.gif_image_size <= 1024:
+            raise ValueError(f"eval.gif_image_size={self.gif_image_size} must be in [16, 1024]")
+        check_positive("eval.gif_stride", self.gif_stride)
+
+
+@dataclass
 class VLAGRConfig:
     """Root of every recipe."""
 
@@ -115,11 +161,24 @@ class VLAGRConfig:
     expert: ExpertConfig = field(default_factory=ExpertConfig)
     collect: CollectConfig = field(default_factory=CollectConfig)
     demo: DemoConfig = field(default_factory=DemoConfig)
+    eval: EvalConfig = field(default_factory=EvalConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
     training: TrainingConfig = field(default_factory=TrainingConfig)
     logging: LoggingConfig = field(default_factory=LoggingConfig)
 
 
 def register_configs() -> None:
-    """Register the schema under the name ``base_config`` (idempotent)."""
-    ConfigStore.instance().store(name="base_config", node=VLAGRConfig)
+    """Register the schema under the name ``base_config`` (idempotent).
+
+    The agent's view of the sensor follows the world's unless a recipe sets it
+    (``model.image_size``, ``model.encoders.max_depth`` and ``model.gr_field.max_depth``
+    follow ``env.*``), and the component fields in
+    :data:`~vla_gr.configs.model_schema.FOLLOWS` follow their model key.
+    """
+    node = OmegaConf.structured(VLAGRConfig)
+    node.model.image_size = "${env.image_size}"
+    node.model.encoders.max_depth = "${env.max_depth}"
+    node.model.gr_field.max_depth = "${env.max_depth}"
+    for (component, attr), key in FOLLOWS.items():
+        node.model[component][attr] = "${model." + key + "}"
+    ConfigStore.instance().store(name="base_config", node=node)

@@ -5,11 +5,12 @@ from __future__ import annotations
 import importlib.util
 from dataclasses import dataclass, field
 
-from vla_gr.configs.validation import check_choice, check_positive
+from vla_gr.validation import check_choice, check_positive
 
 AMP_MODES = ("none", "fp16", "bf16")
 DEVICES = ("auto", "cpu", "cuda")
 IF_MISSING = ("error", "collect", "synthetic")
+ON_CORRUPT = ("error", "skip")
 DDP_BACKENDS = ("auto", "nccl", "gloo")
 LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
 BEST_METRICS = ("val_loss", "success", "spl")
@@ -22,6 +23,7 @@ class TrainingConfig:
     # Data.
     dataset: str = "data/expert_train.zarr"
     if_missing: str = "error"  # dataset absent: error | collect (run the expert) | synthetic
+    on_corrupt: str = "error"  # damaged store: error (refuse) | skip (train on intact episodes)
     synthetic_episodes: int = 8  # for if_missing=synthetic
     synthetic_length: int = 24
     val_ratio: float = 0.1  # held-out episodes for the validation loss
@@ -60,6 +62,7 @@ class TrainingConfig:
 
     def __post_init__(self) -> None:
         check_choice("training.if_missing", self.if_missing, IF_MISSING)
+        check_choice("training.on_corrupt", self.on_corrupt, ON_CORRUPT)
         check_positive("training.synthetic_episodes", self.synthetic_episodes)
         check_positive("training.synthetic_length", self.synthetic_length)
         if not 0.0 <= self.val_ratio < 1.0:

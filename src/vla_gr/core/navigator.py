@@ -45,8 +45,8 @@ import numpy as np
 import torch
 from scipy import ndimage
 
-from vla_gr.core.field_map import FREE_HITS, OCC_HITS, points_to_cells
 from vla_gr.core.gr_field import GRField, GRFieldConfig
+from vla_gr.core.gr_field.mapping import FREE_HITS, OCC_HITS, points_to_cells
 from vla_gr.core.pure_pursuit import lookahead_target
 from vla_gr.geometry.camera import project_depth
 

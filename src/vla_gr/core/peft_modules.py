@@ -10,6 +10,9 @@ Target selection follows peft: a list of names matches a module whose full
 name equals an entry or ends with ``"." + entry``; a single string is a regular
 expression that must match the full name; ``"all-linear"`` selects every
 ``nn.Linear``. Unlike peft, *every* list entry must match something.
+
+Applies to any module of :mod:`vla_gr.core` (attention projections first); next in the
+data flow: merged weights serve inference with no overhead.
 """
 
 from __future__ import annotations
@@ -27,6 +30,8 @@ from peft import LoraConfig, OFTConfig, PeftModel, inject_adapter_in_model
 from peft.tuners.tuners_utils import BaseTunerLayer
 from safetensors.torch import load_file, save_file
 from torch import nn
+
+from vla_gr.validation import check_choice, check_positive_int
 
 logger = logging.getLogger(__name__)
 
@@ -194,8 +199,7 @@ def _freeze_all_but_adapters(model: nn.Module) -> None:
 
 
 def _check_common(rank: int, adapter_name: str, model: nn.Module, key: str = "rank") -> None:
-    if not (isinstance(rank, int) and rank > 0):
-        raise ValueError(f"{key}={rank!r} must be a positive int")
+    check_positive_int(key, rank)
     if adapter_name in getattr(model, "peft_config", {}):
         raise ValueError(f"adapter_name={adapter_name!r} is already used in this model")
 
@@ -332,12 +336,8 @@ def apply_adapter_to_model(
 
     Only adapter parameters stay trainable. Returns ``model`` itself.
     """
-    if not (isinstance(bottleneck_dim, int) and bottleneck_dim > 0):
-        raise ValueError(f"bottleneck_dim={bottleneck_dim!r} must be a positive int")
-    if activation not in _ACTIVATIONS:
-        raise ValueError(
-            f"activation={activation!r} is not valid; choose one of {list(_ACTIVATIONS)}"
-        )
+    check_positive_int("bottleneck_dim", bottleneck_dim)
+    check_choice("activation", activation, _ACTIVATIONS)
     if not 0.0 <= dropout < 1.0:
         raise ValueError(f"dropout={dropout!r} must be in [0, 1)")
     names = resolve_targets(model, target_modules, (nn.Linear,))

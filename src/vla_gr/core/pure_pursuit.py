@@ -17,14 +17,22 @@ from dataclasses import dataclass
 import numpy as np
 
 from vla_gr.geometry.camera import intrinsics_from_hfov
+from vla_gr.geometry.robot_spec import (
+    CAMERA_HEIGHT,
+    HFOV_DEG,
+    MAX_ANGULAR_SPEED,
+    MAX_LINEAR_SPEED,
+    MIN_DEPTH,
+    ROBOT_RADIUS,
+)
 
 
 @dataclass(frozen=True)
 class PursuitConfig:
     """Speeds (from the robot spec), pursuit geometry and the depth safety check."""
 
-    max_linear_speed: float = 0.5  # m/s at v = 1 (the env's MAX_LINEAR_SPEED)
-    max_angular_speed: float = 1.0  # rad/s at w = 1 (the env's MAX_ANGULAR_SPEED)
+    max_linear_speed: float = MAX_LINEAR_SPEED  # m/s at v = 1
+    max_angular_speed: float = MAX_ANGULAR_SPEED  # rad/s at w = 1
     lookahead: float = 0.6  # m: the pursued point's distance along the waypoints
     arrive_distance: float = 0.15  # m: the last waypoint closer than this is reached
     turn_in_place: float = math.radians(50.0)  # |heading error| above this: turn in place
@@ -36,15 +44,15 @@ class PursuitConfig:
     max_linear: float = 1.0  # cap of the linear fraction
     # depth safety: the corridor ahead (robot width + margin) must be clear of points in the
     # obstacle height band; speed falls linearly from slow_distance to stop_distance
-    robot_radius: float = 0.18
+    robot_radius: float = ROBOT_RADIUS
     side_margin: float = 0.05
     stop_distance: float = 0.25  # m from the robot centre to the nearest point ahead
     slow_distance: float = 0.8
     floor_height: float = 0.1
     robot_height: float = 1.2
-    camera_height: float = 0.88
-    hfov_deg: float = 79.0
-    min_depth: float = 0.05
+    camera_height: float = CAMERA_HEIGHT
+    hfov_deg: float = HFOV_DEG
+    min_depth: float = MIN_DEPTH
 
     def __post_init__(self) -> None:
         for key in (

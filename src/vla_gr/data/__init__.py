@@ -21,6 +21,7 @@ _LAZY = {
     "StoreError": "vla_gr.data.store",
     "fake_episode": "vla_gr.data.store",
     "run_expert_episode": "vla_gr.data.collect",
+    "verify_store": "vla_gr.data.verify",
 }
 
 __all__ = list(_LAZY)

@@ -13,7 +13,7 @@ import logging
 import multiprocessing as mp
 import sys
 import time
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +33,8 @@ def env_kwargs_from_config(cfg, split: str, semantic: bool = True) -> dict:
         "max_episode_steps": cfg.env.max_episode_steps,
         "success_distance": cfg.env.success_distance,
         "semantic": semantic,
+        "depth_noise_std": cfg.env.depth_noise_std,
+        "actuation_noise": cfg.env.actuation_noise,
     }
     if cfg.env.episodes:
         kwargs["episodes"] = cfg.env.episodes
@@ -119,6 +121,37 @@ def _work(index: int) -> EpisodeRecord:
     return record
 
 
+def _close_worker() -> None:
+    _WORKER.pop("env").close()
+    _WORKER.clear()
+
+
+def map_in_workers(
+    init: Callable, init_args: tuple, work: Callable, items: Sequence, workers: int, close: Callable
+) -> Iterator:
+    """``work(item)`` for each of ``items``, yielded in that order, from ``workers`` processes.
+
+    Each spawned process runs ``init(*init_args)`` once (its env, its agent). With
+    ``workers == 1`` everything runs in this process and ``close()`` tears it down after.
+    """
+    if workers < 1:
+        raise ValueError(f"workers={workers} must be >= 1")
+    if not items:
+        return
+    if workers == 1 or len(items) <= 1:
+        init(*init_args)
+        try:
+            for item in items:
+                yield work(item)
+        finally:
+            close()
+        return
+    ctx = mp.get_context("spawn")
+    n = min(workers, len(items))
+    with ctx.Pool(n, initializer=init, initargs=init_args) as pool:
+        yield from pool.imap(work, items, chunksize=1)
+
+
 def iter_expert_episodes(
     indices: Sequence[int], env_kwargs: dict, expert_kwargs: dict, seed: int = 0, workers: int = 1
 ) -> Iterator[EpisodeRecord]:
@@ -126,23 +159,8 @@ def iter_expert_episodes(
 
     With ``workers == 1`` everything runs in this process.
     """
-    if workers < 1:
-        raise ValueError(f"workers={workers} must be >= 1")
-    if not indices:
-        return
-    if workers == 1 or len(indices) <= 1:
-        _init_worker(env_kwargs, expert_kwargs, seed)
-        try:
-            for index in indices:
-                yield _work(index)
-        finally:
-            _WORKER.pop("env").close()
-            _WORKER.clear()
-        return
-    ctx = mp.get_context("spawn")
-    n = min(workers, len(indices))
-    with ctx.Pool(n, initializer=_init_worker, initargs=(env_kwargs, expert_kwargs, seed)) as pool:
-        yield from pool.imap(_work, indices, chunksize=1)
+    init_args = (env_kwargs, expert_kwargs, seed)
+    yield from map_in_workers(_init_worker, init_args, _work, indices, workers, _close_worker)
 
 
 # ----------------------------------------------------------------------------- the command
@@ -188,6 +206,10 @@ def collect(cfg) -> dict:
         "seed": cfg.seed,
         "vla_gr_version": __version__,
     }
+    if cfg.env.episodes:  # a bad episodes file fails before the store is created
+        from vla_gr.envs.episodes import load_episodes
+
+        load_episodes(cfg.env.episodes)
     store = open_output_store(path, c.mode, cfg.env.image_size, info)
     wanted = list(range(c.first_episode, c.first_episode + c.num_episodes))
     present = set(store.episode_indices.tolist())
@@ -242,15 +264,11 @@ def run_from_cli(config_name: str, overrides: Sequence[str]) -> int:
     from vla_gr.configs import load_config
 
     _, cfg = load_config(config_name, overrides)
-    try:
-        collect(cfg)
-    except (FileExistsError, StoreError) as err:
-        log.error("%s", err)
-        return 2
+    collect(cfg)  # an existing or mismatched store: a user error (exit code 2)
     return 0
 
 
 if __name__ == "__main__":
-    from vla_gr.cli import module_main
+    from vla_gr.configs.command import module_main
 
-    sys.exit(module_main("collect"))
+    sys.exit(module_main("data.collect", run_from_cli))

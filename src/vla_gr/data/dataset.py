@@ -77,6 +77,8 @@ class EpisodeWindowDataset(Dataset):
     with T = ``n_obs_steps``. With ``normalize=True`` pose and action are mapped to
     [-1, 1] by ``self.normalizers`` (min/max stored with the data). ``in_memory=False``
     reads whole episodes from the store on demand and keeps the last ``cache_episodes``.
+    A store opened with ``on_corrupt="skip"`` contributes only its intact episodes (the
+    split is drawn over all episodes first, so it does not move when some are damaged).
     """
 
     def __init__(
@@ -92,6 +94,7 @@ class EpisodeWindowDataset(Dataset):
         cache_episodes: int = 4,
         rgb_uint8: bool = False,
         normalize: bool = False,
+        on_corrupt: str = "error",
     ) -> None:
         if n_obs_steps < 1:
             raise ValueError(f"n_obs_steps={n_obs_steps} must be >= 1")
@@ -99,7 +102,11 @@ class EpisodeWindowDataset(Dataset):
             raise ValueError(f"horizon={horizon} must be >= 1")
         if split not in _SPLITS:
             raise ValueError(f"split={split!r} is not valid; choose one of {list(_SPLITS)}")
-        store = path if isinstance(path, EpisodeStore) else EpisodeStore.open(path, mode="r")
+        store = (
+            path
+            if isinstance(path, EpisodeStore)
+            else EpisodeStore.open(path, mode="r", on_corrupt=on_corrupt)
+        )
         self.store = store
         self.n_obs_steps, self.horizon = n_obs_steps, horizon
         self.rgb_uint8, self.normalize = rgb_uint8, normalize
@@ -112,7 +119,16 @@ class EpisodeWindowDataset(Dataset):
             bad = ids[(ids < 0) | (ids >= E)]
             if bad.size:
                 raise ValueError(f"episodes {bad.tolist()} out of range [0, {E})")
-        self.episode_ids = np.asarray(ids, dtype=np.int64)  # (E_sel,)
+        ids = np.asarray(ids, dtype=np.int64)
+        damaged = np.isin(ids, store.damaged_episodes)
+        if damaged.any():
+            log.warning(
+                "dataset %s split=%s: left out damaged episodes %s",
+                store.path,
+                split,
+                ids[damaged].tolist(),
+            )
+        self.episode_ids = ids[~damaged]  # (E_sel,)
         lengths = store.episode_lengths[self.episode_ids]  # (E_sel,)
         self._lengths = lengths
         # Global (store) frame offset of each selected episode, and of the local copy.

@@ -19,6 +19,14 @@ last the root attributes (``num_episodes`` and the updated ``stats``) in one ato
 metadata write. That write is the commit point: anything beyond ``num_episodes`` (or
 beyond ``episode_ends[num_episodes - 1]`` frames) is the residue of an interrupted run.
 Readers ignore it; ``repair()`` (run when a store is opened for appending) truncates it.
+
+Integrity (format 2): every chunk ends in its CRC32C checksum and every chunk is written,
+even when it holds only fill values. ``open`` checks that every chunk the committed
+episodes need exists and matches its checksum, and that actions and poses are valid
+(``vla_gr.data.integrity``); a damaged store is refused (``StoreError`` naming the store,
+the arrays and the episodes) or, with ``on_corrupt="skip"``, opened without its damaged
+episodes. Format-1 stores (no checksums) still open, with one warning: flipped or truncated
+chunks can go unnoticed there; ``vla-gr store copy OLD NEW`` rewrites one with checksums.
 """
 
 from __future__ import annotations
@@ -33,23 +41,39 @@ from pathlib import Path
 
 import numpy as np
 import zarr
-from zarr.codecs import BloscCodec
+from zarr.codecs import BloscCodec, Crc32cCodec, ZstdCodec
 
+from vla_gr.data.integrity import (
+    VALUE_RANGES,
+    Damage,
+    describe_damage,
+    episodes_of_rows,
+    is_checksummed,
+    scan_store_arrays,
+    value_problem,
+)
 from vla_gr.data.normalize import compute_stats, merge_stats
+from vla_gr.errors import UserError
 
 log = logging.getLogger(__name__)
 
 FORMAT_NAME = "vla_gr.episode_store"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+#: Format versions this library reads; 1 has no chunk checksums.
+READABLE_VERSIONS = (1, 2)
 FRAME_KEYS: tuple[str, ...] = ("rgb", "depth", "pose", "action", "goal_mask")
 META_KEYS: tuple[str, ...] = ("episode_ends", "episode_index", "instruction", "spec", "metrics")
 #: Keys whose statistics are kept (and what ``stats`` holds for depth: one channel).
 STATS_KEYS: tuple[str, ...] = ("action", "pose", "depth")
 _MODES = ("r", "a")
+ON_CORRUPT = ("error", "skip")
+#: Arrays without which no episode can be located: damage there is never skippable.
+_STRUCTURAL = ("meta/episode_ends", "meta/episode_index")
+_warned_legacy: set[str] = set()
 
 
-class StoreError(ValueError):
-    """A store that is missing, malformed or inconsistent; the message names the problem."""
+class StoreError(UserError, ValueError):
+    """A store that is missing, malformed, inconsistent or damaged; the message names it."""
 
 
 @dataclass
@@ -92,6 +116,10 @@ class EpisodeRecord:
                 raise ValueError(
                     f"{key} must have shape {shape} (from rgb {self.rgb.shape}), got {got}"
                 )
+        for key in VALUE_RANGES:
+            problem = value_problem(key, getattr(self, key))
+            if problem is not None:
+                raise ValueError(f"episode {self.episode_index}: {key} has {problem}")
 
     def __len__(self) -> int:
         return int(self.rgb.shape[0])
@@ -123,14 +151,24 @@ class EpisodeStore:
     """A zarr episode store; ``create`` a new one or ``open`` an existing one (validated).
 
     Only committed episodes are visible: ``num_episodes``, ``episode_ends`` and every
-    accessor ignore the residue of an interrupted append.
+    accessor ignore the residue of an interrupted append. ``damage`` lists the bad chunks
+    found on opening (``on_corrupt="report"``, used by ``verify_store``, keeps them
+    without refusing or warning).
     """
 
-    def __init__(self, path: str | Path, group: zarr.Group, mode: str) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        group: zarr.Group,
+        mode: str,
+        on_corrupt: str = "error",
+        deep: bool = False,
+    ) -> None:
         self.path = Path(path)
         self._group = group
         self.mode = mode
-        self._validate()
+        self.damage: list[Damage] = []
+        self._validate(on_corrupt, deep)
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -173,12 +211,17 @@ class EpisodeStore:
                 shape=(0, *shape),
                 chunks=(_frames_per_chunk(shape, itemsize, chunk_bytes), *shape),
                 dtype=dtype,
-                compressors=BloscCodec(cname="zstd", clevel=3, shuffle=shuffle),
+                compressors=[BloscCodec(cname="zstd", clevel=3, shuffle=shuffle), Crc32cCodec()],
             )
-        meta.create_array("episode_ends", shape=(0,), chunks=(4096,), dtype="int64")
-        meta.create_array("episode_index", shape=(0,), chunks=(4096,), dtype="int64")
+        checked = [ZstdCodec(level=3), Crc32cCodec()]
+        meta.create_array(
+            "episode_ends", shape=(0,), chunks=(4096,), dtype="int64", compressors=checked
+        )
+        meta.create_array(
+            "episode_index", shape=(0,), chunks=(4096,), dtype="int64", compressors=checked
+        )
         for key in ("instruction", "spec", "metrics"):
-            meta.create_array(key, shape=(0,), chunks=(512,), dtype=str)
+            meta.create_array(key, shape=(0,), chunks=(512,), dtype=str, compressors=checked)
         group.attrs.update(
             {
                 "format": FORMAT_NAME,
@@ -194,18 +237,30 @@ class EpisodeStore:
         return cls(path, zarr.open_group(str(path), mode="a", zarr_format=3), mode="a")
 
     @classmethod
-    def open(cls, path: str | Path, mode: str = "r") -> EpisodeStore:
+    def open(
+        cls, path: str | Path, mode: str = "r", on_corrupt: str = "error", deep: bool = False
+    ) -> EpisodeStore:
         """Open and validate an existing store; ``mode`` 'r' (read) or 'a' (append).
 
-        Opening for appending first truncates any residue of an interrupted append.
+        Every chunk the committed episodes need is checked (present, checksum, valid
+        actions and poses; ``deep`` decodes and checks every chunk). A damaged store raises
+        ``StoreError``; ``on_corrupt="skip"`` (read-only) opens it without the damaged
+        episodes (``damaged_episodes``), listed in a warning. Opening for appending first
+        truncates any residue of an interrupted append.
         """
         if mode not in _MODES:
             raise ValueError(f"mode={mode!r} is not valid; choose one of {list(_MODES)}")
+        if on_corrupt not in ON_CORRUPT:
+            raise ValueError(
+                f"on_corrupt={on_corrupt!r} is not valid; choose one of {list(ON_CORRUPT)}"
+            )
+        if mode == "a" and on_corrupt == "skip":
+            raise ValueError("on_corrupt='skip' opens read-only; use mode='r'")
         path = Path(path)
         if not (path / "zarr.json").is_file():
             raise StoreError(f"{path} is not an episode store (no zarr.json)")
         group = zarr.open_group(str(path), mode="r" if mode == "r" else "r+")
-        store = cls(path, group, mode)
+        store = cls(path, group, mode, on_corrupt=on_corrupt, deep=deep)
         if mode == "a" and store.has_uncommitted():
             store.repair()
         return store
@@ -218,9 +273,9 @@ class EpisodeStore:
             raise StoreError(f"store {self.path} is missing array '{name}'") from None
         if not isinstance(arr, zarr.Array):
             raise StoreError(f"store {self.path}: '{name}' is a group, expected an array")
-        return arr
+        return arr.with_config({"write_empty_chunks": True})
 
-    def _validate(self) -> None:
+    def _validate(self, on_corrupt: str = "error", deep: bool = False) -> None:
         attrs = self._group.attrs
         if attrs.get("format") != FORMAT_NAME:
             raise StoreError(
@@ -228,10 +283,10 @@ class EpisodeStore:
                 f"expected {FORMAT_NAME!r}"
             )
         version = attrs.get("format_version")
-        if not isinstance(version, int) or version > FORMAT_VERSION:
+        if version not in READABLE_VERSIONS:
             raise StoreError(
                 f"store {self.path}: format_version={version!r} is not supported "
-                f"(this library reads <= {FORMAT_VERSION})"
+                f"(this library reads {list(READABLE_VERSIONS)})"
             )
         self._data = {k: self._array(f"data/{k}") for k in FRAME_KEYS}
         self._meta = {k: self._array(f"meta/{k}") for k in META_KEYS}
@@ -244,6 +299,14 @@ class EpisodeStore:
                     f"store {self.path}: mismatched lengths: meta/{key} has "
                     f"{arr.shape[0]} entries but the store commits {E} episodes"
                 )
+        legacy = not is_checksummed(self._data["rgb"])
+        structural = {k: self._group[k] for k in _STRUCTURAL}
+        bad = self._scan(structural, {k: E for k in _STRUCTURAL}, None, deep, legacy)
+        if bad:
+            raise StoreError(
+                f"{describe_damage(self.path, bad)}; no episode can be located without "
+                "these arrays: collect the store again"
+            )
         ends = np.asarray(self._meta["episode_ends"][:E], dtype=np.int64)  # (E,)
         if E and (ends[0] <= 0 or (np.diff(ends) <= 0).any()):
             raise StoreError(
@@ -267,6 +330,19 @@ class EpisodeStore:
                 )
         self._E, self._N, self._ends = E, N, ends
         self._indices = set(np.asarray(self._meta["episode_index"][:E]).tolist())
+        arrays = {n: a for n, a in self.arrays().items() if n not in _STRUCTURAL}
+        rows = {name: (N if name.startswith("data/") else E) for name in arrays}
+        self.damage = self._scan(arrays, rows, ends, deep, legacy)
+        self._check_damage(on_corrupt)
+        if legacy and str(self.path) not in _warned_legacy:
+            _warned_legacy.add(str(self.path))
+            log.warning(
+                "store %s is format 1, written without chunk checksums: flipped or truncated "
+                "chunks can go unnoticed (missing chunks and invalid actions are still "
+                "caught); `vla-gr store copy %s NEW` rewrites it with checksums",
+                self.path,
+                self.path,
+            )
         if self.has_uncommitted():
             log.warning(
                 "store %s has uncommitted residue after %d episodes / %d frames "
@@ -274,6 +350,41 @@ class EpisodeStore:
                 self.path,
                 E,
                 N,
+            )
+
+    def _scan(self, arrays, rows, ends, deep: bool, legacy: bool) -> list[Damage]:
+        """Damage of ``arrays`` (name -> array); frames map to episodes through ``ends``."""
+
+        def owners(name: str, start: int, stop: int) -> tuple[int, ...]:
+            if name.startswith("data/"):
+                return episodes_of_rows(ends, start, stop)
+            return tuple(range(start, stop))
+
+        return scan_store_arrays(arrays, self.path, rows, owners, deep, legacy)
+
+    def _check_damage(self, on_corrupt: str) -> None:
+        """Refuse a damaged store, or (``skip``) warn once and hide its damaged episodes."""
+        self._damaged = frozenset(e for d in self.damage for e in d.episodes)
+        if not self.damage or on_corrupt == "report":
+            return
+        message = describe_damage(self.path, self.damage)
+        if on_corrupt == "error":
+            raise StoreError(
+                f"{message}. Run `vla-gr store verify {self.path}` for a full report, or skip "
+                "the damaged episodes with on_corrupt='skip' (training.on_corrupt=skip)"
+            )
+        log.warning("%s; skipping those episodes", message)
+
+    @property
+    def damaged_episodes(self) -> list[int]:
+        """Sorted stored episodes that a bad chunk hits (empty for a healthy store)."""
+        return sorted(self._damaged)
+
+    def _require_intact(self, e: int) -> None:
+        if e in self._damaged:
+            raise StoreError(
+                f"store {self.path}: episode {e} is damaged "
+                f"({'; '.join(d.describe() for d in self.damage if e in d.episodes)})"
             )
 
     def has_uncommitted(self) -> bool:
@@ -337,6 +448,11 @@ class EpisodeStore:
     def info(self) -> dict:
         return dict(self._group.attrs.get("info", {}))
 
+    def arrays(self) -> dict[str, zarr.Array]:
+        """Every array by its name in the store: ``data/rgb`` ... ``meta/metrics``."""
+        named = {f"data/{k}": a for k, a in self._data.items()}
+        return named | {f"meta/{k}": a for k, a in self._meta.items()}
+
     def data_array(self, key: str) -> zarr.Array:
         """The raw zarr array ``data/<key>``; only its first ``num_frames`` rows are committed."""
         if key not in self._data:
@@ -353,18 +469,22 @@ class EpisodeStore:
     def episode(self, e: int, keys=FRAME_KEYS) -> dict[str, np.ndarray]:
         """Frames of stored episode ``e``: each key -> (T, ...) array."""
         sl = self.episode_slice(e)
+        self._require_intact(e)
         return {k: self.data_array(k)[sl] for k in keys}
 
     def _meta_str(self, key: str, e: int) -> str:
         if not 0 <= e < self._E:
             raise IndexError(f"episode {e} out of range [0, {self._E})")
+        self._require_intact(e)
         return str(self._meta[key][e])
 
     def instruction(self, e: int) -> str:
         return self._meta_str("instruction", e)
 
     def instructions(self) -> list[str]:
-        """All committed instructions, in store order."""
+        """All committed instructions, in store order ("" for damaged episodes)."""
+        if self._damaged:
+            return ["" if e in self._damaged else self.instruction(e) for e in range(self._E)]
         return [str(s) for s in self._meta["instruction"][: self._E]] if self._E else []
 
     def spec(self, e: int) -> dict:
@@ -426,14 +546,17 @@ def fake_episode(
 ) -> EpisodeRecord:
     """A synthetic episode for smoke tests (like openpi's ``fake_obs``).
 
-    Frame ``t`` is recognisable: ``pose[t] = (t, episode_index, 0)``, ``action[t, 0] = t``,
-    and every rgb pixel of frame t equals ``t % 256``; the rest is seeded noise.
+    Frame ``t`` is recognisable: ``pose[t] = (t, episode_index, 0)``,
+    ``action[t, 0] = (t % 256) / 256`` and every rgb pixel of frame t equals ``t % 256``;
+    the rest is seeded noise.
     """
     rng = np.random.default_rng((seed, episode_index))
     T, S = length, image_size
     t = np.arange(T, dtype=np.float32)  # (T,)
     rgb = np.broadcast_to((np.arange(T) % 256).astype(np.uint8)[:, None, None, None], (T, S, S, 3))
-    action = np.stack([t, rng.uniform(-1, 1, T), np.where(t == T - 1, 1.0, -1.0)], axis=1)
+    action = np.stack(
+        [(t % 256) / 256, rng.uniform(-1, 1, T), np.where(t == T - 1, 1.0, -1.0)], axis=1
+    )
     return EpisodeRecord(
         episode_index=episode_index,
         rgb=rgb.copy(),

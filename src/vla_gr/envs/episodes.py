@@ -25,6 +25,7 @@ from vla_gr.envs.geodesic import (
 )
 from vla_gr.envs.geodesic import goal_distance_field as goal_field
 from vla_gr.envs.scene import House
+from vla_gr.errors import UserError
 
 logger = logging.getLogger(__name__)
 
@@ -34,6 +35,10 @@ MIN_START_DISTANCE = 2.0  # m, geodesic start -> goal footprint
 MAX_START_DISTANCE = 15.0
 START_CLEARANCE = 0.05  # m of free space around the base at the start, beyond its radius
 _SPLIT_CODE = {"train": 11, "val": 23, "test": 37}
+
+
+class EpisodeFileError(UserError, ValueError):
+    """An episodes file that is missing, empty or holds a bad line (named by number)."""
 
 
 @dataclass(frozen=True)
@@ -272,7 +277,7 @@ def load_episodes(path: str | Path) -> list[EpisodeSpec]:
     """Read a JSONL file written by :func:`save_episodes` (blank lines skipped)."""
     path = Path(path)
     if not path.is_file():
-        raise ValueError(f"episodes file {str(path)!r} does not exist")
+        raise EpisodeFileError(f"episodes file {str(path)!r} does not exist")
     specs = []
     with path.open(encoding="utf-8") as f:
         for lineno, line in enumerate(f, start=1):
@@ -281,7 +286,7 @@ def load_episodes(path: str | Path) -> list[EpisodeSpec]:
             try:
                 specs.append(EpisodeSpec.from_dict(json.loads(line)))
             except (json.JSONDecodeError, ValueError, TypeError) as err:
-                raise ValueError(f"{path}:{lineno}: bad episode record: {err}") from err
+                raise EpisodeFileError(f"{path}:{lineno}: bad episode record: {err}") from err
     if not specs:
-        raise ValueError(f"episodes file {str(path)!r} holds no episodes")
+        raise EpisodeFileError(f"episodes file {str(path)!r} holds no episodes")
     return specs

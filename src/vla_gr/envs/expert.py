@@ -19,8 +19,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from vla_gr.envs.geodesic import ROBOT_RADIUS, sample_field
+from vla_gr.envs.geodesic import sample_field
 from vla_gr.geometry import GridSpec, geodesic_distance
+from vla_gr.geometry.robot_spec import ROBOT_RADIUS
 
 logger = logging.getLogger(__name__)
 

@@ -7,8 +7,7 @@ from scipy import ndimage
 
 from vla_gr.envs.scene import House
 from vla_gr.geometry import GridSpec, geodesic_distance, inflate_obstacles
-
-ROBOT_RADIUS = 0.18
+from vla_gr.geometry.robot_spec import ROBOT_RADIUS
 
 
 def clearance_radius(robot_radius: float, cell_size: float) -> float:
@@ -79,3 +78,22 @@ def connected_to(traversable: np.ndarray, cell: tuple[int, int]) -> np.ndarray:
     labels, _ = ndimage.label(traversable, structure=np.ones((3, 3), int))
     label = labels[cell]
     return labels == label if label > 0 else np.zeros_like(traversable)
+
+
+def distance_at(field: np.ndarray, grid: GridSpec, x: float, y: float) -> float:
+    """``field`` at (x, y), snapped to the nearest finite cell when the point has none.
+
+    A robot centre inside the inflated margin (pressed against a wall) samples only ``inf``
+    corners; like Habitat, which snaps such a position to the nearest navigable point, the
+    value of the nearest cell with a finite distance is returned instead (``inf`` only when
+    the field has no finite cell at all).
+    """
+    value = sample_field(field, grid, x, y)
+    if np.isfinite(value):
+        return value
+    rows, cols = np.nonzero(np.isfinite(field))
+    if rows.size == 0:
+        return float("inf")
+    centres = grid.cell_to_world(np.stack([rows, cols], axis=-1))  # (N, 2)
+    nearest = int(np.argmin(np.sum((centres - np.array([x, y])) ** 2, axis=1)))
+    return float(field[rows[nearest], cols[nearest]])

@@ -45,15 +45,14 @@ from vla_gr.envs.episodes import (
 from vla_gr.envs.episodes import (
     goal_field as episode_goal_field,
 )
-from vla_gr.envs.geodesic import sample_field, traversable_cells
+from vla_gr.envs.geodesic import distance_at, traversable_cells
 from vla_gr.envs.metrics import EpisodeMeasures
 from vla_gr.envs.rendering import RGBDRenderer, make_gl_context, tune_model_for_speed
 from vla_gr.envs.scene import House, ObjectInstance
+from vla_gr.geometry.robot_spec import MAX_ANGULAR_SPEED, MAX_LINEAR_SPEED
 
 logger = logging.getLogger(__name__)
 
-MAX_LINEAR_SPEED = 0.5  # m/s
-MAX_ANGULAR_SPEED = 1.0  # rad/s
 SUBSTEPS = 10  # 10 ms physics steps: stiff enough contacts (< 1 mm penetration at a wall)
 BLOCKED_FRACTION = 0.5  # achieved / commanded displacement below this + contact = collision
 INSTRUCTION_MAX_LENGTH = 256
@@ -162,6 +161,8 @@ class ObjectNavEnv(gym.Env):
         episodes_per_scene: int = EPISODES_PER_SCENE,
         scene_cache_size: int = 4,
         render_mode: str | None = None,
+        depth_noise_std: float = 0.0,
+        actuation_noise: float = 0.0,
     ) -> None:
         if split not in ("train", "val", "test"):
             raise ValueError(f"split={split!r} is not valid; choose one of train, val, test")
@@ -176,6 +177,12 @@ class ObjectNavEnv(gym.Env):
         ):
             if not value > 0:
                 raise ValueError(f"{name}={value} must be > 0")
+        for name, value in (
+            ("depth_noise_std", depth_noise_std),
+            ("actuation_noise", actuation_noise),
+        ):
+            if not value >= 0:
+                raise ValueError(f"{name}={value} must be >= 0")
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode={render_mode!r} must be None or 'rgb_array'")
         self.split = split
@@ -190,6 +197,9 @@ class ObjectNavEnv(gym.Env):
         self.episodes_per_scene = int(episodes_per_scene)
         self.scene_cache_size = int(scene_cache_size)
         self.render_mode = render_mode
+        # Robustness noise (off by default), drawn from ``np_random``: reset(seed=k) replays it.
+        self.depth_noise_std = float(depth_noise_std)  # metres, Gaussian, per pixel
+        self.actuation_noise = float(actuation_noise)  # relative, per step, on v and w
         self.max_linear_speed = MAX_LINEAR_SPEED
         self.max_angular_speed = MAX_ANGULAR_SPEED
         if episodes is None:
@@ -245,11 +255,13 @@ class ObjectNavEnv(gym.Env):
     # ------------------------------------------------------------------ gymnasium API
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
-        super().reset(seed=seed)
         options = dict(options or {})
         unknown = set(options) - {"episode", "house"}
         if unknown:
             raise ValueError(f"unknown reset options {sorted(unknown)}; use 'episode', 'house'")
+        if seed is not None:
+            self._check_seed(seed)
+        super().reset(seed=seed)
         if self.spec is not None and self.spec.max_episode_steps:
             self.max_episode_steps = int(self.spec.max_episode_steps)
         house = options.get("house")
@@ -274,6 +286,9 @@ class ObjectNavEnv(gym.Env):
         if not called_stop:
             linear = float(act[0]) * self.max_linear_speed
             angular = float(act[1]) * self.max_angular_speed
+            if self.actuation_noise > 0:
+                gain = 1.0 + self.actuation_noise * self.np_random.standard_normal(2)  # (2,)
+                linear, angular = linear * float(gain[0]), angular * float(gain[1])
             adr = scene.robot.qpos_adr
             x0, y0 = scene.data.qpos[adr[0]], scene.data.qpos[adr[1]]
             touched = rb.drive(scene.model, scene.data, scene.robot, linear, angular, SUBSTEPS)
@@ -287,7 +302,7 @@ class ObjectNavEnv(gym.Env):
         )
         if not called_stop:
             self.trajectory_world.append((x, y))
-        distance = sample_field(self.goal_distance, self.house.grid, x, y)
+        distance = distance_at(self.goal_distance, self.house.grid, x, y)
         self._measures.update((x, y), distance, collided, called_stop)
         self._steps += 1
         terminated = called_stop
@@ -344,10 +359,22 @@ class ObjectNavEnv(gym.Env):
             raise RuntimeError("no episode: call reset() first")
         return self._scene
 
+    def _check_seed(self, seed) -> None:
+        """Raise (quoting ``seed``) unless it is an episode index of this env."""
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+            raise TypeError(f"seed must be an int (the episode index) or None, got {seed!r}")
+        if seed < 0:
+            raise ValueError(f"seed={seed} must be >= 0 (it selects the episode)")
+        from vla_gr.envs.house import SPLIT_SIZE
+
+        limit = SPLIT_SIZE * self.episodes_per_scene
+        if self.episode_list is None and seed >= limit:
+            raise ValueError(
+                f"seed={seed} must be < {limit}: split {self.split!r} has {limit} episodes"
+            )
+
     def _episode_at(self, seed: int | None, house: House | None):
         index = self._episode_index + 1 if seed is None else int(seed)
-        if index < 0:
-            raise ValueError(f"seed={seed} must be >= 0 (it selects the episode)")
         self._episode_index = index
         if self.episode_list is not None:
             return self.episode_list[index % len(self.episode_list)], house
@@ -451,6 +478,9 @@ class ObjectNavEnv(gym.Env):
         scene = self._scene
         renderer = self._renderer(self.image_size, True)
         rgb, depth = renderer.render(scene.data)  # (H, W, 3), (H, W)
+        if self.depth_noise_std > 0:
+            noise = self.np_random.normal(0.0, self.depth_noise_std, depth.shape)  # (H, W)
+            depth = np.clip(depth + noise, 0.0, self.max_depth).astype(np.float32)
         pose = rb.relative_pose(self.robot_pose_world(), self.start_pose_world)
         obs = {
             "rgb": rgb,

@@ -16,6 +16,8 @@ import re
 import mujoco
 import numpy as np
 
+from vla_gr.geometry.robot_spec import MAX_DEPTH
+
 logger = logging.getLogger(__name__)
 
 _OBJ_NAME = re.compile(r"^obj(\d+)(?:_|$)")
@@ -83,7 +85,7 @@ class RGBDRenderer:
         width: int,
         height: int,
         camera_id: int,
-        max_depth: float = 10.0,
+        max_depth: float = MAX_DEPTH,
         hidden_groups: tuple[int, ...] = (3,),
     ) -> None:
         if width <= 0 or height <= 0:

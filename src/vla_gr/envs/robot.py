@@ -16,10 +16,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from vla_gr.envs.geodesic import ROBOT_RADIUS
+from vla_gr.geometry.robot_spec import CAMERA_HEIGHT, HFOV_DEG, ROBOT_RADIUS
 
-CAMERA_HEIGHT = 0.88
-HFOV_DEG = 79.0
 BASE_HEIGHT = 1.0  # collision cylinder reaches above the camera, so table tops stop it
 BASE_CLEARANCE = 0.02  # gap under the cylinder: no floor contact, no floor friction
 ROBOT_GROUP = 3  # geom group hidden from the robot's own camera

@@ -15,6 +15,7 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
 from vla_gr.envs.scene import CATEGORIES, House, category_display_name
+from vla_gr.geometry.robot_spec import ROBOT_RADIUS
 
 log = logging.getLogger(__name__)
 
@@ -134,7 +135,7 @@ class TopDownMap:
         """
         img = Image.fromarray(self.base.copy())
         draw = ImageDraw.Draw(img)
-        r = max(3.0, 0.18 * self.px_per_m)  # robot radius in pixels, at least 3
+        r = max(3.0, ROBOT_RADIUS * self.px_per_m)  # robot radius in pixels, at least 3
         if trajectory is not None and len(trajectory) > 1:
             pts = self.to_pixel(np.asarray(trajectory, dtype=np.float64)[:, :2])  # (N, 2)
             width = max(1, int(round(r / 2)))

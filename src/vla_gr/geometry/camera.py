@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import torch
 
+from vla_gr.geometry.robot_spec import CAMERA_HEIGHT, MAX_DEPTH, MIN_DEPTH
+
 
 @dataclass(frozen=True)
 class Intrinsics:
@@ -107,10 +109,10 @@ def project_depth(
     depth: torch.Tensor,
     hfov_deg: float,
     pose: torch.Tensor,
-    camera_height: float = 0.88,
+    camera_height: float = CAMERA_HEIGHT,
     forward_offset: float = 0.0,
-    min_depth: float = 0.05,
-    max_depth: float = 10.0,
+    min_depth: float = MIN_DEPTH,
+    max_depth: float = MAX_DEPTH,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Depth images -> map-frame 3-D points with a validity mask.
 

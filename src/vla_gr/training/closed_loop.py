@@ -3,6 +3,7 @@
 At each validation rank 0 runs the (EMA) policy on ``training.eval_episodes`` fixed ``val``
 episodes (indices 0..N-1, so successive evaluations are comparable) and the other ranks
 wait; the metrics are then broadcast so every rank takes the same checkpoint decision.
+Called by ``maybe_validate`` in ``vla_gr.train``; the rollouts are ``vla_gr.evaluate``'s.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ def closed_loop_metrics(model, cfg, dist: DistInfo, amp_context) -> dict[str, fl
     out: list = [None]
     if dist.is_main:
         from vla_gr.data.collect import env_kwargs_from_config
-        from vla_gr.evaluate import rollout_policy, summarize
+        from vla_gr.evaluation.runner import rollout_policy, summarize
 
         env_kwargs = env_kwargs_from_config(cfg, "val", semantic=False)
         env_kwargs["max_episode_steps"] = t.eval_max_steps

@@ -1,4 +1,7 @@
-"""The training data: make sure the episode store exists, then train / val loaders."""
+"""The training data: make sure the episode store exists, then train / val loaders.
+
+Reads ``data/`` (store, windows); the loaders feed ``training/step.py`` from ``vla_gr.train``.
+"""
 
 from __future__ import annotations
 
@@ -11,6 +14,7 @@ from torch.utils.data import DataLoader
 
 from vla_gr.data.dataset import EpisodeWindowDataset
 from vla_gr.data.store import EpisodeStore, fake_episode
+from vla_gr.errors import ConfigError
 from vla_gr.training.distributed import DistInfo, ResumableSampler, barrier
 
 log = logging.getLogger(__name__)
@@ -56,22 +60,24 @@ def prepare_store(cfg, dist: DistInfo) -> Path:
 
 
 def build_datasets(cfg, path: Path) -> tuple[EpisodeWindowDataset, EpisodeWindowDataset | None]:
-    """Train and held-out windows (episode-level split by ``training.val_ratio``)."""
+    """Train and held-out windows (episode-level split by ``training.val_ratio``); a damaged
+    store is refused, or its damaged episodes left out with ``training.on_corrupt=skip``."""
     m, t = cfg.model, cfg.training
     kwargs = dict(
         n_obs_steps=m.n_obs_steps, horizon=m.horizon, val_ratio=t.val_ratio, seed=cfg.seed
     )
-    train = EpisodeWindowDataset(path, split="train", **kwargs)
+    store = EpisodeStore.open(path, mode="r", on_corrupt=t.on_corrupt)
+    train = EpisodeWindowDataset(store, split="train", **kwargs)
     if tuple(train.store.image_size) != (m.image_size, m.image_size):
-        raise ValueError(
+        raise ConfigError(
             f"training.dataset {path} holds {train.store.image_size} images but "
             f"model.image_size={m.image_size}"
         )
-    val = EpisodeWindowDataset(path, split="val", **kwargs) if t.val_ratio > 0 else None
+    val = EpisodeWindowDataset(store, split="val", **kwargs) if t.val_ratio > 0 else None
     if val is not None and len(val) == 0:
         val = None
     if len(train) < t.batch_size:
-        raise ValueError(
+        raise ConfigError(
             f"training.dataset {path} has {len(train)} training windows, fewer than "
             f"training.batch_size={t.batch_size}"
         )

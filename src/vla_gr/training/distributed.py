@@ -2,7 +2,8 @@
 
 The same script runs single-process or under ``torchrun --nproc_per_node=N`` (which sets
 ``RANK``, ``WORLD_SIZE``, ``LOCAL_RANK``, ``MASTER_ADDR``, ``MASTER_PORT``): NCCL on GPU,
-gloo on CPU. Logging and checkpoints happen on rank 0 only.
+gloo on CPU. Logging and checkpoints happen on rank 0 only. Set up first by
+``vla_gr.train``; ``training/data.py`` builds its sampler.
 """
 
 from __future__ import annotations

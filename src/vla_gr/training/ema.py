@@ -1,4 +1,7 @@
-"""Exponential moving average of model weights (diffusion_policy's EMAModel), used for eval."""
+"""Exponential moving average of model weights (diffusion_policy's EMAModel), used for eval.
+
+Updated by ``training/step.py``; validated with and saved by ``training/state.py``.
+"""
 
 from __future__ import annotations
 

@@ -1,10 +1,14 @@
-"""Run observability on rank 0: metrics.jsonl, TensorBoard, optional wandb, a progress bar."""
+"""Run observability on rank 0: metrics.jsonl, TensorBoard, optional wandb, a progress bar.
+
+Fed by the loop in ``vla_gr.train``; ``read_metrics`` reads ``metrics.jsonl`` back.
+"""
 
 from __future__ import annotations
 
 import json
 import logging
 import math
+import os
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -15,7 +19,8 @@ log = logging.getLogger(__name__)
 class MetricsLogger:
     """Append scalars to ``<run>/metrics.jsonl`` and mirror them to TensorBoard / wandb.
 
-    Disabled (every call a no-op) on ranks other than 0.
+    Disabled (every call a no-op) on ranks other than 0. A run resumed at ``resume_step``
+    first drops what was logged after that step (the resumed run logs those steps again).
     """
 
     def __init__(
@@ -26,6 +31,7 @@ class MetricsLogger:
         wandb_cfg=None,
         config: Mapping | None = None,
         run_name: str | None = None,
+        resume_step: int | None = None,
     ) -> None:
         self.enabled = enabled
         self.run_dir = Path(run_dir)
@@ -34,11 +40,14 @@ class MetricsLogger:
         if not enabled:
             return
         self.run_dir.mkdir(parents=True, exist_ok=True)
+        if resume_step is not None:
+            drop_rows_after(self.run_dir / "metrics.jsonl", resume_step)
         self._jsonl = open(self.run_dir / "metrics.jsonl", "a", buffering=1)  # noqa: SIM115
         if tensorboard:
             from torch.utils.tensorboard import SummaryWriter
 
-            self._tb = SummaryWriter(str(self.run_dir / "tensorboard"))
+            purge = resume_step + 1 if resume_step is not None else None
+            self._tb = SummaryWriter(str(self.run_dir / "tensorboard"), purge_step=purge)
         if wandb_cfg is not None and wandb_cfg.enabled:
             try:
                 import wandb
@@ -82,6 +91,28 @@ class MetricsLogger:
 
 def _json_num(v):
     return None if isinstance(v, float) and not math.isfinite(v) else v
+
+
+def drop_rows_after(path: Path, step: int) -> int:
+    """Rewrite a ``metrics.jsonl`` without its rows past ``step`` (or torn by a kill);
+    returns how many were dropped."""
+    if not path.is_file():
+        return 0
+    lines = [x for x in path.read_text().splitlines() if x.strip()]
+    kept = [x for x in lines if (s := _row_step(x)) is not None and s <= step]
+    if len(kept) < len(lines):
+        tmp = path.with_name(f".{path.name}.tmp")
+        tmp.write_text("".join(x + "\n" for x in kept))
+        os.replace(tmp, path)
+        log.info("%s: dropped %d rows logged after step %d", path, len(lines) - len(kept), step)
+    return len(lines) - len(kept)
+
+
+def _row_step(line: str) -> int | None:
+    try:
+        return int(json.loads(line)["step"])
+    except (ValueError, KeyError, TypeError):
+        return None
 
 
 def read_metrics(path: str | Path) -> list[dict]:

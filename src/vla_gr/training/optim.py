@@ -1,4 +1,7 @@
-"""AdamW with decoupled weight decay on >= 2-D weights only, and a warmup + cosine schedule."""
+"""AdamW with decoupled weight decay on >= 2-D weights only, and a warmup + cosine schedule.
+
+Stepped by ``training/step.py``; their state is saved by ``training/state.py``.
+"""
 
 from __future__ import annotations
 

@@ -1,0 +1,26 @@
+"""The GR field: the agent's map becomes mass, a Poisson potential, a conformal metric, a path.
+
+Data flow: :mod:`.config` (``GRFieldConfig``, feature channels) -> :mod:`.mapping`
+(depth -> allocentric evidence map) -> :mod:`.physics` (masses, potential, metric,
+geodesics; pure maths) -> :mod:`.planning` (``GRField``: one update per planner tick,
+waypoints and egocentric features) -> :mod:`.picture` (top-down image for reports).
+"""
+
+from vla_gr.core.gr_field.config import FEATURE_NAMES, GRFieldConfig
+from vla_gr.core.gr_field.mapping import update_map
+from vla_gr.core.gr_field.physics import christoffel_conformal, integrate_geodesic, solve_poisson
+from vla_gr.core.gr_field.picture import render_field
+from vla_gr.core.gr_field.planning import GRField, GRFieldOutput, snap_start
+
+__all__ = [
+    "FEATURE_NAMES",
+    "GRField",
+    "GRFieldConfig",
+    "GRFieldOutput",
+    "christoffel_conformal",
+    "integrate_geodesic",
+    "render_field",
+    "snap_start",
+    "solve_poisson",
+    "update_map",
+]

@@ -1,0 +1,20 @@
+"""Helpers of ``vla-gr eval`` (the app is :mod:`vla_gr.evaluate`).
+
+- :mod:`.agents`  name -> factory registry (``checkpoint``, ``expert``, ``random``);
+- :mod:`.runner`  the episode loop with its per-step record, spawn workers, JSONL rows;
+- :mod:`.causes`  failure causes from an episode's record;
+- :mod:`.summary` ``metrics.json`` from rows (means, breakdowns, causes, latency);
+- :mod:`.report`  ``report.md``, bar charts, replayed GIFs and top-down pictures.
+"""
+
+from vla_gr.evaluation.agents import AGENTS, make_agent, register_agent
+from vla_gr.evaluation.causes import CAUSES, CauseThresholds, failure_cause
+
+__all__ = [
+    "AGENTS",
+    "CAUSES",
+    "CauseThresholds",
+    "failure_cause",
+    "make_agent",
+    "register_agent",
+]

@@ -1,0 +1,72 @@
+"""Why an episode failed, decided from the episode's own record (pure functions).
+
+One cause per failed episode, checked in this order:
+
+- ``stopped_at_distractor``: STOP called within ``success_distance`` (geodesic) of another
+  object of the goal's category;
+- ``stopped_elsewhere``: any other wrong STOP;
+- ``stuck`` (no STOP): every position of the last ``stuck_steps`` steps lies within
+  ``stuck_radius`` of the final one (spinning in place, pinned against furniture);
+- ``timeout_goal_never_seen``: the goal instance never covered ``goal_seen_pixels`` pixels
+  of an observation;
+- ``timeout_goal_seen``: the goal was seen but the budget ran out.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+CAUSES: tuple[str, ...] = (
+    "stopped_at_distractor",
+    "stopped_elsewhere",
+    "stuck",
+    "timeout_goal_never_seen",
+    "timeout_goal_seen",
+)
+
+
+@dataclass(frozen=True)
+class CauseThresholds:
+    """The knobs of :func:`failure_cause` (``eval.*`` config fields)."""
+
+    success_distance: float = 1.0  # m
+    goal_seen_pixels: int = 20
+    stuck_steps: int = 50
+    stuck_radius: float = 0.3  # m
+
+
+def is_stuck(xy: np.ndarray, steps: int, radius: float) -> bool:
+    """True when the last ``steps`` moves of ``xy`` (T+1, 2) stay within ``radius`` of the end."""
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    if len(xy) <= steps:
+        return False
+    window = xy[-(steps + 1) :]  # (steps + 1, 2)
+    return bool(np.linalg.norm(window - window[-1], axis=1).max() < radius)
+
+
+def failure_cause(
+    success: bool,
+    stopped: bool,
+    xy: np.ndarray,
+    goal_pixels: Sequence[int],
+    distractor_distances: Sequence[float],
+    th: CauseThresholds,
+) -> str | None:
+    """The cause of a failed episode (None for a success); see the module docstring.
+
+    ``xy`` (T+1, 2) world positions from the start, ``goal_pixels`` (T+1,) goal-instance
+    pixel counts per observation, ``distractor_distances`` geodesic distances (m) from the
+    final position to each same-category distractor.
+    """
+    if success:
+        return None
+    if stopped:
+        near = [d for d in distractor_distances if d <= th.success_distance]
+        return "stopped_at_distractor" if near else "stopped_elsewhere"
+    if is_stuck(xy, th.stuck_steps, th.stuck_radius):
+        return "stuck"
+    seen = len(goal_pixels) > 0 and max(goal_pixels) >= th.goal_seen_pixels
+    return "timeout_goal_seen" if seen else "timeout_goal_never_seen"

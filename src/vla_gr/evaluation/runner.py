@@ -1,0 +1,295 @@
+"""The closed-loop episode loop, its per-episode record, and parallel workers.
+
+:func:`run_episode` is the one rollout loop (``vla_gr.evaluate.rollout_policy`` and
+``vla-gr eval`` both use it). Besides the env's final ``info`` it keeps what explains the
+episode afterwards: world positions, goal-instance pixel counts (when the env renders
+``semantic``), geodesic distances, the executed actions (a deterministic env replays them
+exactly, which is how GIFs are made after the run) and the time of each decision.
+
+:func:`iter_episode_rows` runs episodes in ``workers`` spawned processes (MuJoCo GL
+contexts do not survive fork), one env and one agent each, and yields rows in the order
+of the episode indices, so the output does not depend on ``workers``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from vla_gr.envs.metrics import aggregate
+from vla_gr.evaluation.causes import CauseThresholds, failure_cause
+
+log = logging.getLogger(__name__)
+
+FINAL_KEYS = (
+    "success",
+    "spl",
+    "soft_spl",
+    "distance_to_goal",
+    "collisions",
+    "collision_rate",
+    "path_length",
+    "geodesic_start_distance",
+    "steps",
+)
+
+
+def episode_seed(seed: int, index: int) -> int:
+    """Seed of the agent's randomness in episode ``index`` of a run seeded ``seed``."""
+    return int(np.random.SeedSequence([int(seed), int(index)]).generate_state(1)[0])
+
+
+def instruction_kind(instruction: str) -> str:
+    """'relation', 'room', 'colour' or 'category': the most specific attribute it names."""
+    from vla_gr.envs.instructions import parse_instruction
+
+    parsed = parse_instruction(instruction)
+    if parsed["near"]:
+        return "relation"
+    if parsed["room"]:
+        return "room"
+    if parsed["color"]:
+        return "colour"
+    return "category"
+
+
+def _distractor_distances(env, xy: tuple[float, float]) -> dict[str, float]:
+    """Distance (m) from ``xy`` to each object of the goal's category but the goal.
+
+    Geodesic for distractors whose footprint may lie within ``success_distance``; for the
+    others a straight-line lower bound (centre distance minus half-diagonal), which already
+    exceeds ``success_distance`` and spares a fast-marching solve.
+    """
+    from vla_gr.envs.geodesic import distance_at, goal_distance_field
+    from vla_gr.envs.instructions import distractors
+
+    u = env.unwrapped
+    out = {}
+    for oid in distractors(u.house, u.goal.instance_id):
+        obj = u.house.object(oid)
+        bound = math.hypot(obj.x - xy[0], obj.y - xy[1]) - math.hypot(*obj.half_extents)
+        if bound > u.success_distance:
+            out[str(oid)] = round(bound, 4)
+            continue
+        field = goal_distance_field(u.house, oid)  # (H, W)
+        out[str(oid)] = distance_at(field, u.house.grid, *xy)
+    return out
+
+
+def _goal_pixels(obs: dict, goal_id: int) -> int:
+    semantic = obs.get("semantic")
+    return -1 if semantic is None else int(np.count_nonzero(semantic == goal_id))
+
+
+def run_episode(
+    env, agent, index: int, seed: int = 0, thresholds: CauseThresholds | None = None
+) -> dict:
+    """Run ``agent`` on episode ``index`` (``env.reset(seed=index)``); the episode's row.
+
+    Row keys: ``episode_index``, ``episode_id``, ``spec``, ``metrics`` (the final info),
+    ``stopped``, ``cause`` (None on success), ``num_rooms``, ``goal_category``,
+    ``instruction_kind``, ``distractor_distances`` (after a wrong STOP), ``trace`` (``xy`` (T+1, 2),
+    ``goal_pixels`` (T+1,) or -1 without semantic, ``distance`` (T+1,)), ``actions``
+    (T, 3), ``latency_ms`` ({part: (T,)}), ``parameters``.
+    """
+    th = thresholds or CauseThresholds(success_distance=env.unwrapped.success_distance)
+    obs, info = env.reset(seed=int(index))
+    u = env.unwrapped
+    goal_id = int(u.goal.instance_id)
+    agent.reset(episode_seed(seed, index))
+    xy = [tuple(float(v) for v in u.robot_pose_world()[:2])]
+    pixels = [_goal_pixels(obs, goal_id)]
+    distance = [float(info["distance_to_goal"])]
+    actions: list[list[float]] = []
+    latency: dict[str, list[float]] = {}
+    terminated = truncated = False
+    clock = time.perf_counter
+    with torch.inference_mode():
+        while not (terminated or truncated):
+            t0 = clock()
+            action = agent.act(obs)  # (3,)
+            elapsed = clock() - t0
+            latency.setdefault("decision", []).append(elapsed * 1e3)
+            for part, seconds in (getattr(agent, "last_timings", None) or {}).items():
+                latency.setdefault(part, []).append(seconds * 1e3)
+            obs, _, terminated, truncated, info = env.step(action)
+            actions.append([float(a) for a in np.asarray(action, dtype=np.float32)])
+            pose = u.robot_pose_world()
+            xy.append((float(pose[0]), float(pose[1])))
+            pixels.append(_goal_pixels(obs, goal_id))
+            distance.append(float(info["distance_to_goal"]))
+    metrics = {k: info[k] for k in FINAL_KEYS}
+    metrics = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in metrics.items()}
+    stopped = bool(terminated)
+    distractor = _distractor_distances(env, xy[-1]) if stopped and not metrics["success"] else {}
+    spec = u.episode_spec
+    cause = failure_cause(
+        bool(metrics["success"]), stopped, np.array(xy), pixels, list(distractor.values()), th
+    )
+    return {
+        "episode_index": int(index),
+        "episode_id": spec.episode_id,
+        "spec": spec.to_dict(),
+        "metrics": metrics,
+        "stopped": stopped,
+        "cause": cause,
+        "num_rooms": len(u.house.rooms),
+        "goal_category": spec.goal_category,
+        "instruction_kind": instruction_kind(spec.instruction),
+        "distractor_distances": distractor,
+        "trace": {
+            "xy": [[round(x, 4), round(y, 4)] for x, y in xy],
+            "goal_pixels": pixels,
+            "distance": [round(d, 4) for d in distance],
+        },
+        "actions": actions,
+        "latency_ms": {k: [round(v, 4) for v in vals] for k, vals in latency.items()},
+        "parameters": agent.parameters(),
+    }
+
+
+def rollout_policy(
+    policy, env_kwargs: dict, episodes: Sequence[int], device: torch.device | str = "cpu"
+) -> list[dict]:
+    """Run ``policy`` on each episode index of ``episodes``; one final info dict per episode.
+
+    ``policy`` needs ``reset()`` and ``select_action(obs) -> (1, A)``; an ``nn.Module`` is
+    moved to ``device`` and put in eval mode for the rollout (its train/eval mode is restored
+    afterwards). ``env_kwargs`` go to ``gymnasium.make("VLAGR/ObjectNav-v0", ...)``
+    (``max_episode_steps`` is the step budget). Episode ``k`` is ``env.reset(seed=k)``.
+    Each episode seeds torch (replayable sampling) inside a forked RNG: the caller's random
+    streams (a training run's) are left as they were.
+    """
+    from vla_gr.data.collect import make_env
+    from vla_gr.evaluation.agents import PolicyAgent
+
+    if len(episodes) == 0:
+        raise ValueError("episodes must name at least one episode index")
+    is_module = isinstance(policy, nn.Module)
+    was_training = policy.training if is_module else False
+    if is_module:
+        policy.to(device).eval()
+    env = make_env(dict(env_kwargs))
+    agent = PolicyAgent(policy, device)
+    infos: list[dict] = []
+    try:
+        with torch.random.fork_rng():
+            for k in episodes:
+                row = run_episode(env, agent, int(k))
+                infos.append(dict(row["metrics"], episode_index=int(k)))
+    finally:
+        env.close()
+        if is_module:
+            policy.train(was_training)
+    return infos
+
+
+def summarize(infos: Sequence[dict]) -> dict:
+    """Mean success, SPL, soft-SPL, collision rate, path length, final distance; ``episodes``."""
+    return aggregate(infos)
+
+
+# ----------------------------------------------------------------------------- workers
+
+_WORKER: dict = {}
+
+
+def _init_worker(cfg, agent_name: str, env_kwargs: dict, warm_index: int) -> None:
+    """Per-process env + agent, made once and reused for every episode of the worker.
+
+    One untimed decision on episode ``warm_index`` first, so that lazy initialisation
+    (first kernels, caches) does not land in the latency of the first timed decision.
+    """
+    from vla_gr.data.collect import make_env
+    from vla_gr.evaluation.agents import make_agent
+
+    torch.set_num_threads(1)
+    env = make_env(env_kwargs)
+    agent = make_agent(agent_name, cfg, env)
+    obs, _ = env.reset(seed=int(warm_index))
+    agent.reset(0)
+    with torch.inference_mode():
+        agent.act(obs)
+    _WORKER.update(env=env, agent=agent, cfg=cfg)
+
+
+def _work(index: int) -> dict:
+    cfg = _WORKER["cfg"]
+    th = thresholds_from_config(cfg)
+    return run_episode(_WORKER["env"], _WORKER["agent"], index, cfg.seed, th)
+
+
+def thresholds_from_config(cfg) -> CauseThresholds:
+    e = cfg.eval
+    return CauseThresholds(
+        cfg.env.success_distance, e.goal_seen_pixels, e.stuck_steps, e.stuck_radius
+    )
+
+
+def iter_episode_rows(
+    cfg, agent_name: str, env_kwargs: dict, indices: Sequence[int], workers: int = 1
+) -> Iterator[dict]:
+    """Rows of episodes ``indices``, in that order, from ``workers`` processes (1: here).
+
+    Every worker, this process included, runs torch on one thread: the same arithmetic,
+    so the rows do not depend on ``workers``.
+    """
+    from vla_gr.data.collect import map_in_workers
+
+    threads = torch.get_num_threads()
+
+    def close() -> None:
+        _WORKER.pop("env").close()
+        _WORKER.clear()
+        torch.set_num_threads(threads)
+
+    init_args = (cfg, agent_name, env_kwargs, indices[0] if indices else 0)
+    yield from map_in_workers(_init_worker, init_args, _work, indices, workers, close)
+
+
+# ----------------------------------------------------------------------------- rows on disk
+
+
+def read_rows(path: Path) -> list[dict]:
+    """Complete rows of an ``episodes.jsonl`` (a torn last line, from a kill, is dropped)."""
+    if not path.is_file():
+        return []
+    rows = []
+    lines = path.read_text(encoding="utf-8").split("\n")
+    for lineno, line in enumerate(lines, start=1):
+        if not line.strip():
+            continue
+        try:
+            rows.append(json.loads(line))
+        except json.JSONDecodeError:
+            if lineno != len(lines):
+                raise ValueError(f"{path}:{lineno}: not a JSON row (edited by hand?)") from None
+            log.warning("%s: dropped a torn last row (interrupted run)", path)
+    return rows
+
+
+class RowWriter:
+    """Appends rows to ``episodes.jsonl``, one flushed line each (a kill loses no row)."""
+
+    def __init__(self, path: Path, keep: Sequence[dict]) -> None:
+        tmp = path.with_name(path.name + ".tmp")
+        with tmp.open("w", encoding="utf-8") as f:  # rewrite the complete rows only
+            for row in keep:
+                f.write(json.dumps(row) + "\n")
+        tmp.replace(path)
+        self._file = path.open("a", encoding="utf-8")
+
+    def write(self, row: dict) -> None:
+        self._file.write(json.dumps(row) + "\n")
+        self._file.flush()
+
+    def close(self) -> None:
+        self._file.close()

@@ -1,0 +1,103 @@
+"""``metrics.json`` from episode rows: means, breakdowns, failure causes, latency, parameters.
+
+Everything except ``latency_ms`` and ``timing`` (wall-clock measurements) is a pure function
+of the rows, so a resumed run writes the same ``metrics.json`` as an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from vla_gr.envs.metrics import aggregate
+from vla_gr.evaluation.causes import CAUSES
+
+BREAKDOWNS = ("num_rooms", "goal_category", "instruction_kind")
+#: Keys of metrics.json that depend on wall-clock time (excluded from equality checks).
+TIMING_KEYS = ("latency_ms", "timing")
+
+
+def overall(rows: Sequence[dict]) -> dict:
+    """Means over episodes of the final metrics, plus collision share and steps."""
+    infos = [r["metrics"] for r in rows]
+    out = aggregate(infos)
+    out["collision_episode_share"] = float(np.mean([i["collisions"] > 0 for i in infos]))
+    out["steps"] = float(np.mean([i["steps"] for i in infos]))
+    return out
+
+
+def breakdown(rows: Sequence[dict], key: str) -> dict[str, dict]:
+    """{value of ``key``: {episodes, success, spl}} with values sorted."""
+    groups: dict[str, list[dict]] = {}
+    for r in rows:
+        groups.setdefault(str(r[key]), []).append(r["metrics"])
+    return {
+        value: {
+            "episodes": len(infos),
+            "success": float(np.mean([i["success"] for i in infos])),
+            "spl": float(np.mean([i["spl"] for i in infos])),
+        }
+        for value, infos in sorted(groups.items())
+    }
+
+
+def cause_counts(rows: Sequence[dict]) -> dict[str, int]:
+    """Number of failed episodes per cause (every cause listed, zeros included)."""
+    counts = dict.fromkeys(CAUSES, 0)
+    for r in rows:
+        if r["cause"] is not None:
+            counts[r["cause"]] += 1
+    return counts
+
+
+def latency(rows: Sequence[dict]) -> dict[str, dict]:
+    """Per part: p50/p95/p99/mean (ms) over every decision of every episode, and calls."""
+    parts: dict[str, list[float]] = {}
+    for r in rows:
+        for part, values in r["latency_ms"].items():
+            parts.setdefault(part, []).extend(values)
+    out = {}
+    for part, values in parts.items():
+        v = np.asarray(values, dtype=np.float64)
+        p50, p95, p99 = np.percentile(v, [50, 95, 99])
+        out[part] = {
+            "p50": float(p50),
+            "p95": float(p95),
+            "p99": float(p99),
+            "mean": float(v.mean()),
+            "calls": int(v.size),
+        }
+    return out
+
+
+def summarize_rows(
+    rows: Sequence[dict], header: dict, seconds: float, workers: int, ran: int | None = None
+) -> dict:
+    """The ``metrics.json`` content; ``header`` holds the run settings (agent, env, ...).
+
+    ``seconds`` is the time this invocation took to run ``ran`` of the episodes (fewer than
+    ``len(rows)`` after a resume).
+    """
+    ran = len(rows) if ran is None else ran
+    if not rows:
+        raise ValueError("no episodes to summarize")
+    return {
+        **header,
+        "metrics": overall(rows),
+        "breakdowns": {key: breakdown(rows, key) for key in BREAKDOWNS},
+        "failure_causes": cause_counts(rows),
+        "parameters": rows[0]["parameters"],
+        "latency_ms": latency(rows),
+        "timing": {
+            "seconds": seconds,
+            "workers": workers,
+            "episodes_run": ran,
+            "episodes_per_min": 60.0 * ran / seconds if seconds > 0 and ran else 0.0,
+        },
+    }
+
+
+def without_timing(metrics: dict) -> dict:
+    """``metrics`` minus its wall-clock entries (what two runs of the same eval share)."""
+    return {k: v for k, v in metrics.items() if k not in TIMING_KEYS}

@@ -1,0 +1,66 @@
+"""Failure causes from an episode's record, and metrics.json from rows (pure functions)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vla_gr.evaluation.causes import CAUSES, CauseThresholds, failure_cause, is_stuck
+from vla_gr.evaluation.summary import cause_counts, latency, overall, without_timing
+
+TH = CauseThresholds(success_distance=1.0, goal_seen_pixels=10, stuck_steps=5, stuck_radius=0.3)
+
+
+def line(n: int, step: float = 0.2) -> np.ndarray:
+    return np.stack([np.arange(n + 1) * step, np.zeros(n + 1)], axis=1)  # (n + 1, 2)
+
+
+def test_a_success_has_no_cause():
+    assert failure_cause(True, True, line(3), [0, 50], [0.2], TH) is None
+
+
+def test_stop_within_success_distance_of_a_distractor_is_told_apart():
+    assert failure_cause(False, True, line(3), [0], [3.0, 0.9], TH) == "stopped_at_distractor"
+    assert failure_cause(False, True, line(3), [0], [3.0, 1.1], TH) == "stopped_elsewhere"
+    assert failure_cause(False, True, line(3), [0], [], TH) == "stopped_elsewhere"
+
+
+def test_stuck_needs_the_whole_last_window_inside_the_radius():
+    moving = line(20, step=0.5)
+    still_end = np.concatenate([moving, np.repeat(moving[-1:], 5, axis=0)])  # last 5 moves: 0
+    assert is_stuck(still_end, 5, 0.3)
+    assert not is_stuck(still_end, 6, 0.3)  # the window reaches back to a moving step
+    assert not is_stuck(moving, 5, 0.3)
+    assert not is_stuck(moving[:4], 5, 0.3)  # shorter than the window
+    spin = np.zeros((30, 2)) + np.random.default_rng(0).normal(0, 0.01, (30, 2))
+    assert failure_cause(False, False, spin, [500] * 30, [], TH) == "stuck"  # before "seen"
+
+
+def test_timeouts_split_on_the_largest_goal_pixel_count():
+    xy = line(30)
+    assert failure_cause(False, False, xy, [0, 9, 3], [], TH) == "timeout_goal_never_seen"
+    assert failure_cause(False, False, xy, [0, 10, 3], [], TH) == "timeout_goal_seen"
+    assert failure_cause(False, False, xy, [-1, -1], [], TH) == "timeout_goal_never_seen"
+
+
+def _row(success, cause, collisions, steps, latency_ms):
+    m = dict(success=success, spl=0.5 * success, soft_spl=0.3, collision_rate=collisions / steps)
+    m.update(path_length=2.0, distance_to_goal=1.5, collisions=collisions, steps=steps)
+    return {"metrics": m, "cause": cause, "latency_ms": {"decision": latency_ms}}
+
+
+def test_summary_counts_causes_shares_and_latency_percentiles():
+    rows = [
+        _row(1.0, None, 0, 10, [1.0] * 10),
+        _row(0.0, "stuck", 2, 20, [3.0] * 20),
+        _row(0.0, "stuck", 0, 10, [2.0] * 10),
+    ]
+    counts = cause_counts(rows)
+    assert set(counts) == set(CAUSES) and counts["stuck"] == 2 and sum(counts.values()) == 2
+    out = overall(rows)
+    assert out["success"] == pytest.approx(1 / 3)
+    assert out["collision_episode_share"] == pytest.approx(1 / 3)
+    assert out["steps"] == pytest.approx(40 / 3)
+    lat = latency(rows)["decision"]
+    assert lat["calls"] == 40 and lat["p50"] == 2.5 and lat["p99"] == 3.0
+    assert without_timing({"a": 1, "latency_ms": {}, "timing": {}}) == {"a": 1}

@@ -1,0 +1,315 @@
+"""``vla-gr eval``: agents on episodes, metrics.json vs episodes.jsonl, workers, resume,
+failure causes from scripted agents, and one-line refusals of bad input."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vla_gr.cli import main as cli_main
+from vla_gr.configs import load_config
+from vla_gr.evaluate import EvalInputError, evaluate, expand_aliases, run_from_cli
+from vla_gr.evaluation import AGENTS
+from vla_gr.evaluation.summary import BREAKDOWNS, without_timing
+
+FAST = ["eval.progress=false", "eval.gif_successes=1", "eval.gif_per_cause=0", "seed=3"]
+
+
+def cfg_for(out: Path, *overrides: str):
+    args = expand_aliases([f"output_dir={out}", *FAST, *overrides])
+    return load_config("config_debug", args)[1]
+
+
+def rows_of(out: Path) -> list[dict]:
+    return [json.loads(x) for x in (out / "episodes.jsonl").read_text().splitlines()]
+
+
+def no_latency(rows: list[dict]) -> list[dict]:
+    return [{k: v for k, v in r.items() if k != "latency_ms"} for r in rows]
+
+
+class Constant:
+    """A scripted agent: the same action every step."""
+
+    def __init__(self, action) -> None:
+        self.action = np.asarray(action, dtype=np.float32)
+
+    def reset(self, seed=None) -> None:
+        pass
+
+    def act(self, obs) -> np.ndarray:
+        return self.action
+
+    def parameters(self) -> dict:
+        return {}
+
+
+def test_expert_reaches_every_goal_random_does_worse_and_metrics_match_the_rows(tmp_path, caplog):
+    out = tmp_path / "expert"
+    metrics = evaluate(cfg_for(out, "agent=expert", "num_episodes=3", "env.max_episode_steps=500"))
+    assert metrics["metrics"]["success"] == 1.0 and metrics["metrics"]["episodes"] == 3
+    on_disk = json.loads((out / "metrics.json").read_text())
+    rows = rows_of(out)
+    assert [r["episode_index"] for r in rows] == [0, 1, 2]
+    for key in ("success", "spl", "soft_spl", "distance_to_goal", "path_length", "steps"):
+        assert on_disk["metrics"][key] == pytest.approx(np.mean([r["metrics"][key] for r in rows]))
+    for key in BREAKDOWNS:
+        groups = on_disk["breakdowns"][key]
+        assert sum(g["episodes"] for g in groups.values()) == 3
+        for value, g in groups.items():
+            sub = [r for r in rows if str(r[key]) == value]
+            assert g["success"] == pytest.approx(np.mean([r["metrics"]["success"] for r in sub]))
+    assert sum(on_disk["failure_causes"].values()) == 0
+    assert on_disk["env"]["depth_noise_std"] == 0.0 and on_disk["env"]["actuation_noise"] == 0.0
+    assert on_disk["latency_ms"]["decision"]["calls"] == sum(len(r["actions"]) for r in rows)
+    assert all(len(r["trace"]["xy"]) == r["metrics"]["steps"] + 1 for r in rows)
+    assert (out / "report.md").is_file() and (out / "breakdowns.png").is_file()
+    assert len(list(out.glob("*.gif"))) == 1 and len(list(out.glob("*_topdown.png"))) == 1
+
+    noisy = ("env.depth_noise_std=0.05", "env.actuation_noise=0.2")
+    cfg = cfg_for(tmp_path / "rand", "agent=random", "num_episodes=3", *noisy)
+    cfg = dataclasses.replace(cfg, eval=dataclasses.replace(cfg.eval, gif_per_cause=1))
+    with caplog.at_level(logging.WARNING):
+        rand = evaluate(cfg)
+    assert list((tmp_path / "rand").glob("*.gif"))  # replayed with the same noise draws:
+    assert "replay ended elsewhere" not in caplog.text  # every replay ends where the run did
+    assert rand["env"]["depth_noise_std"] == 0.05 and rand["env"]["actuation_noise"] == 0.2
+    assert rand["metrics"]["success"] < 1.0
+    assert sum(rand["failure_causes"].values()) == 3 - round(3 * rand["metrics"]["success"])
+    assert all(math.isfinite(r["metrics"]["distance_to_goal"]) for r in rows_of(tmp_path / "rand"))
+
+
+def test_results_do_not_depend_on_the_number_of_workers(tmp_path):
+    common = ("agent=random", "num_episodes=3", "env.max_episode_steps=25")
+    one = evaluate(cfg_for(tmp_path / "w1", *common, "workers=1"))
+    two = evaluate(cfg_for(tmp_path / "w2", *common, "workers=2"))
+    assert without_timing(one) == without_timing(two)
+    assert no_latency(rows_of(tmp_path / "w1")) == no_latency(rows_of(tmp_path / "w2"))
+    assert two["timing"]["workers"] == 2
+
+
+def test_a_killed_run_resumes_from_its_finished_rows(tmp_path):
+    common = ("agent=random", "num_episodes=3", "env.max_episode_steps=25")
+    straight = evaluate(cfg_for(tmp_path / "straight", *common))
+    part = tmp_path / "part"
+    part.mkdir()
+    shutil.copy(tmp_path / "straight" / "run.json", part / "run.json")
+    lines = (tmp_path / "straight" / "episodes.jsonl").read_text().splitlines()
+    (part / "episodes.jsonl").write_text(lines[0] + "\n" + lines[1][:50])  # torn second row
+    resumed = evaluate(cfg_for(part, *common))
+    assert without_timing(resumed) == without_timing(straight)
+    assert resumed["timing"]["episodes_run"] == 2 and straight["timing"]["episodes_run"] == 3
+    rows = rows_of(part)
+    assert json.dumps(rows[0]) == lines[0]  # kept as written (same latency): not re-run
+    assert no_latency(rows) == no_latency(rows_of(tmp_path / "straight"))
+    # a different setting in the same folder is refused instead of mixed in
+    with pytest.raises(EvalInputError, match="holds a run with agent='random'"):
+        run_from_cli("config_debug", [f"output_dir={part}", "agent=expert", *FAST])
+
+
+# ----------------------------------------------------------------------------- failure causes
+
+
+def _scripted_episodes(path: Path) -> None:
+    """Episodes in val house 0: start at a distractor, facing the goal, facing away."""
+    from vla_gr.envs.episodes import EpisodeSpec, sample_episode, save_episodes
+    from vla_gr.envs.geodesic import goal_distance_field, sample_field, traversable_cells
+    from vla_gr.envs.house import generate_house
+    from vla_gr.envs.instructions import distractors
+
+    base = sample_episode("val", 0)
+    house = generate_house(base.scene_seed)
+    goal = house.object(base.goal_instance_id)
+    to_goal = goal_distance_field(house, goal.instance_id)  # (H, W)
+    to_other = goal_distance_field(house, distractors(house, goal.instance_id)[0])
+    free = traversable_cells(house)
+    rows, cols = np.nonzero(free & np.isfinite(to_goal))
+    xy = house.grid.cell_to_world(np.stack([rows, cols], axis=1))  # (N, 2)
+    g = np.array([sample_field(to_goal, house.grid, x, y) for x, y in xy])
+    o = np.array([sample_field(to_other, house.grid, x, y) for x, y in xy])
+
+    def spec(i: int, name: str, face_goal: bool) -> EpisodeSpec:
+        x, y = xy[i]
+        yaw = math.atan2(goal.y - y, goal.x - x) + (0.0 if face_goal else math.pi)
+        fields = dict(base.to_dict(), episode_id=name, start_x=x, start_y=y, start_yaw=yaw)
+        return EpisodeSpec(**dict(fields, geodesic_start_distance=float(g[i])))
+
+    at_distractor = int(np.flatnonzero((o < 0.5) & (g > 2.0))[0])
+    near_goal = np.flatnonzero((g > 1.3) & (g < 1.8))
+    straight = np.hypot(*(xy[near_goal] - [goal.x, goal.y]).T) - max(goal.half_extents)
+    near_goal = int(near_goal[np.argmin(np.abs(g[near_goal] - straight))])  # clear view
+    specs = [
+        spec(at_distractor, "at-distractor", False),
+        spec(near_goal, "facing-goal", True),
+        spec(near_goal, "facing-away", False),
+    ]
+    save_episodes(path, specs)
+
+
+def test_each_failure_cause_comes_from_an_agent_built_to_cause_it(tmp_path, monkeypatch):
+    file = tmp_path / "scripted.jsonl"
+    _scripted_episodes(file)
+    agents = {
+        "stop": Constant([0.0, 0.0, 1.0]),
+        "spin": Constant([0.0, 1.0, -1.0]),
+        "still": Constant([0.0, 0.0, -1.0]),
+    }
+    for name, agent in agents.items():
+        monkeypatch.setitem(AGENTS, name, lambda cfg, env, a=agent: a)
+    common = (f"episodes={file}", "env.max_episode_steps=30", "eval.goal_seen_pixels=5")
+
+    def causes(agent: str, *extra: str) -> dict[str, str]:
+        out = tmp_path / f"{agent}{len(extra)}"
+        evaluate(cfg_for(out, f"agent={agent}", *common, *extra))
+        return {r["episode_id"]: r["cause"] for r in rows_of(out)}
+
+    stop = causes("stop")
+    assert stop["at-distractor"] == "stopped_at_distractor"
+    assert stop["facing-goal"] == stop["facing-away"] == "stopped_elsewhere"
+    assert set(causes("spin", "eval.stuck_steps=20").values()) == {"stuck"}
+    still = causes("still", "eval.stuck_steps=100")  # never "stuck": window > budget
+    assert still["facing-goal"] == "timeout_goal_seen"
+    assert still["facing-away"] == "timeout_goal_never_seen"
+
+
+# ------------------------------------------------------------------ checkpoints, bad input
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory) -> Path:
+    from vla_gr import cli
+
+    tmp = tmp_path_factory.mktemp("ckpt")
+    args = [
+        f"training.dataset={tmp / 'syn.zarr'}",
+        f"training.output_dir={tmp / 'runs'}",
+        "training.run_name=r",
+        "logging.tensorboard=false",
+    ]
+    assert cli.main(["train", "--config-name", "config_debug", *args]) == 0
+    return tmp / "runs" / "r" / "checkpoints" / "best"
+
+
+def test_a_trained_checkpoint_reports_latency_and_parameters(tmp_path, checkpoint):
+    from vla_gr.policy import VLAGRPolicy
+
+    # no agent= given: a checkpoint= means the checkpoint agent
+    metrics = evaluate(
+        cfg_for(tmp_path, f"checkpoint={checkpoint}", "num_episodes=2", "env.max_episode_steps=8")
+    )
+    assert metrics["agent"] == "checkpoint"
+    policy = VLAGRPolicy.from_pretrained(checkpoint)
+    assert metrics["parameters"]["total"] == sum(p.numel() for p in policy.parameters())
+    assert metrics["parameters"]["head"] == sum(p.numel() for p in policy.head.parameters())
+    lat = metrics["latency_ms"]["decision"]
+    assert 0 < lat["p50"] <= lat["p95"] <= lat["p99"]
+    assert metrics["checkpoint"] == str(checkpoint)
+
+
+@pytest.mark.parametrize(
+    "overrides, message",
+    [
+        (["agent=nope"], "valid agents: checkpoint, expert, random"),
+        (["workers=0"], "eval.workers=0 must be >= 1"),
+        (["agent=checkpoint"], "agent=checkpoint needs checkpoint="),
+        (["agent=checkpoint", "checkpoint=/no/such/run"], "/no/such/run does not exist"),
+        (["agent=checkpoint", "CKPT", "env.image_size=64"], "model.image_size=32"),
+        (["episodes=BAD"], "bad.jsonl:2: bad episode record"),
+        (["episodes=GOOD", "num_episodes=5"], "exceeds the 1 episodes"),
+    ],
+)
+def test_bad_input_is_one_line_before_any_episode(tmp_path, capsys, checkpoint, overrides, message):
+    from vla_gr.envs.episodes import sample_episode, save_episodes
+
+    good = save_episodes(tmp_path / "good.jsonl", [sample_episode("val", 0)])
+    bad = tmp_path / "bad.jsonl"
+    bad.write_text(good.read_text() + '{"episode_id": "x"}\n')
+    subs = {"CKPT": f"checkpoint={checkpoint}", "episodes=BAD": f"episodes={bad}"}
+    subs["episodes=GOOD"] = f"episodes={good}"
+    args = [subs.get(o, o) for o in overrides]
+    out = tmp_path / "out"
+    argv = ["eval", "--config-name", "config_debug", f"output_dir={out}", *FAST, *args]
+    assert cli_main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("vla-gr eval: error:") and message in err, err
+    assert len(err.splitlines()) <= 2 and "Traceback" not in err
+    assert not out.exists()  # nothing ran, nothing written
+
+
+def test_compare_runs_every_agent_on_the_same_episodes(tmp_path, capsys):
+    args = [
+        f"output_dir={tmp_path}",
+        "agents=[expert,random]",
+        "num_episodes=2",
+        "workers=1",
+        "env.image_size=32",
+        "env.max_episode_steps=20",
+        *FAST,
+    ]
+    assert run_from_cli("compare", args) == 0
+    table = json.loads((tmp_path / "compare.json").read_text())
+    assert list(table) == ["expert", "random"]
+    for agent in table:
+        metrics = json.loads((tmp_path / agent / "metrics.json").read_text())
+        assert table[agent]["success"] == metrics["metrics"]["success"]
+        ids = [r["episode_id"] for r in rows_of(tmp_path / agent)]
+        assert ids == [r["episode_id"] for r in rows_of(tmp_path / "expert")]
+    md = (tmp_path / "compare.md").read_text()
+    assert "| expert" in md and "| random" in md and "| random" in capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_eval_killed_with_sigkill_and_run_again_equals_a_straight_run(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    common = ["agent=random", "num_episodes=6", "env.max_episode_steps=150"]
+    args = ["--config-name", "config_debug", *common, *FAST, "eval.gif_successes=0"]
+    out = tmp_path / "killed"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    cmd = [sys.executable, "-m", "vla_gr.evaluate", *args, f"output_dir={out}"]
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    rows_file = out / "episodes.jsonl"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        if rows_file.is_file() and len(rows_file.read_text().splitlines()) >= 2:
+            break
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    finished = len(rows_file.read_text().splitlines())
+    assert 2 <= finished < 6, "the kill should land mid-run"
+    assert subprocess.run(cmd, env=env, capture_output=True).returncode == 0
+    straight = evaluate(cfg_for(tmp_path / "straight", *common))
+    resumed = json.loads((out / "metrics.json").read_text())
+    assert without_timing(resumed) == without_timing(straight)
+    assert no_latency(rows_of(out)) == no_latency(rows_of(tmp_path / "straight"))
+
+
+class TwoPart(Constant):
+    """A scripted agent that reports the time of its two parts, as a dual system would."""
+
+    def act(self, obs) -> np.ndarray:
+        self.last_timings = {"s1": 0.002, "s2": 0.010}  # seconds
+        return self.action
+
+
+def test_latency_is_reported_per_part_the_agent_names(tmp_path, monkeypatch):
+    monkeypatch.setitem(AGENTS, "two_part", lambda cfg, env: TwoPart([0.5, 0.0, -1.0]))
+    out = tmp_path / "parts"
+    metrics = evaluate(cfg_for(out, "agent=two_part", "num_episodes=1", "env.max_episode_steps=5"))
+    lat = metrics["latency_ms"]
+    assert set(lat) == {"decision", "s1", "s2"}
+    assert lat["s1"]["p50"] == pytest.approx(2.0) and lat["s2"]["p99"] == pytest.approx(10.0)
+    assert lat["decision"]["calls"] == lat["s1"]["calls"] == 5
+    assert "| s2" in (out / "report.md").read_text()
