@@ -1,6 +1,6 @@
 """Training throughput of a recipe: samples/s of train_step (median of several runs).
 
-    python benchmarks/bench_train.py                       # config_cpu on this machine
+    python benchmarks/bench_train.py                       # config_end_to_end on this machine
     python benchmarks/bench_train.py --config config_rtx4060 --cap-gb 8   # on a GPU
     python benchmarks/bench_train.py --config config_server                # bf16 + compile
 
@@ -90,7 +90,7 @@ def one_run(cfg, store: Path, steps: int, warmup: int, device: torch.device) -> 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--config", default="config_cpu")
+    parser.add_argument("--config", default="config_end_to_end")
     parser.add_argument("--runs", type=int, default=5)
     parser.add_argument("--steps", type=int, default=10)
     parser.add_argument("--warmup", type=int, default=2)

@@ -63,8 +63,8 @@ USER_ERRORS = {
     "unknown on_corrupt": (["train", *DEBUG, "training.on_corrupt=maybe"], ["error", "skip"]),
     "no equals": (["train", *DEBUG, "model.x"], ["'model.x'", "key=value"]),
     "unknown recipe": (["train", "--config-name", "nope"], ["'nope'", "config_debug"]),
-    "missing episodes file": (["demo", *DEBUG, "env.episodes={tmp}/none.jsonl"], ["none.jsonl"]),
-    "bad episodes line": (["demo", *DEBUG, "env.episodes={bad}"], ["bad.jsonl:2", "missing"]),
+    "missing episodes file": (["eval", *DEBUG, "episodes={tmp}/none.jsonl"], ["none.jsonl"]),
+    "bad episodes line": (["eval", *DEBUG, "episodes={bad}"], ["bad.jsonl:2", "missing"]),
     "not a store": (["store", "verify", "{tmp}/none.zarr"], ["none.zarr", "not an episode store"]),
 }
 
@@ -117,19 +117,26 @@ def test_console_script_error_output(tmp_path):
 
 def test_demo_runs_on_debug_config(tmp_path, capsys):
     out_dir = tmp_path / "demo"
-    assert main(["demo", "--config-name", "config_debug", f"demo.output_dir={out_dir}"]) == 0
-    table = capsys.readouterr().out
-    assert "| name" in table and "expert (mean of 1)" in table and "spl" in table
+    argv = ["demo", "--config-name", "config_debug", f"demo.output_dir={out_dir}"]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    assert "| name" in out and "| expert" in out and "report:" in out
     metrics = json.loads((out_dir / "metrics.json").read_text())
-    assert metrics["aggregate"]["episodes"] == 1
-    ep = metrics["episodes"][0]
-    assert ep["metrics"]["success"] in (0.0, 1.0)
-    gif = iio.imread(out_dir / "episode_000.gif", index=None)  # (N, H, 3H, 3)
-    assert gif.shape[1] == 64 and gif.shape[2] == 3 * 64
-    assert 2 <= gif.shape[0] <= ep["gif_frames"]  # identical frames may merge
-    png = iio.imread(out_dir / "episode_000_topdown.png")
-    assert png.shape[0] == 128 and png.ndim == 3
+    assert metrics["agent"] == "expert" and metrics["metrics"]["episodes"] == 1
     assert (out_dir / "episodes.jsonl").read_text().count("\n") == 1
+    assert (out_dir / "report.md").is_file()
+    gifs = sorted(out_dir.glob("*.gif"))
+    assert gifs and iio.imread(gifs[0], index=None).ndim == 4  # (N, H, W, 3) frames
+    # a second demo starts afresh instead of resuming the first one's rows
+    assert main(argv) == 0
+    assert json.loads((out_dir / "metrics.json").read_text())["timing"]["episodes_run"] == 1
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "keep.txt").write_text("x")
+    assert (
+        main(["demo", "--config-name", "config_debug", f"demo.output_dir={tmp_path / 'other'}"])
+        == 2
+    )
+    assert (tmp_path / "other" / "keep.txt").exists()
 
 
 def test_no_module_imports_the_cli():

@@ -318,7 +318,7 @@ def test_latency_is_reported_per_part_the_agent_names(tmp_path, monkeypatch):
 def test_true_mask_agent_reports_s1_and_s2_latency_on_its_schedule(tmp_path):
     # the planner's ceiling: the dual system with the true goal mask as S2's perception
     args = expand_aliases([f"output_dir={tmp_path}", *FAST, "agent=true_mask", "num_episodes=1"])
-    cfg = load_config("config_agent", [*args, "env.max_episode_steps=200"])[1]
+    cfg = load_config("config_cpu", [*args, "env.max_episode_steps=200"])[1]
     metrics = evaluate(cfg)
     assert metrics["metrics"]["success"] == 1.0  # val episode 0: the goal is close and seen
     lat = metrics["latency_ms"]

@@ -58,13 +58,13 @@ def test_seed_overrides_work_verbatim(method):
 )
 def test_invalid_values_fail_naming_the_key(override, key):
     with pytest.raises(ValueError, match=key.replace(".", r"\.")):
-        load_config("config_cpu", [override])
+        load_config("config_end_to_end", [override])
 
 
 @pytest.mark.parametrize("override", ["training.learning_rate=1", "model.peft.rnk=4"])
 def test_unknown_keys_fail_naming_the_key(override):
     with pytest.raises(ConfigError, match=override.split("=")[0]):
-        load_config("config_cpu", [override])
+        load_config("config_end_to_end", [override])
 
 
 @pytest.mark.skipif(importlib.util.find_spec("wandb") is not None, reason="wandb installed")

@@ -132,7 +132,6 @@ def test_end_to_end_is_the_default_and_has_no_goal_head():
         (["model.agent=s2"], r"model\.agent"),
         ([*DUAL, "env.image_size=36"], r"model\.image_size=36 must be divisible by 8"),
         ([*DUAL, "model.freeze=[vision]"], r"model\.freeze.*dual_system"),
-        ([*DUAL, "training.eval_episodes=1"], r"training\.eval_episodes=1.*S2 inference"),
         (["training.best_metric=goal_iou"], r"goal_iou.*model\.agent=dual_system"),
         ([*DUAL, "training.best_metric=goal_iou", "training.val_ratio=0"], r"val_ratio > 0"),
         ([*DUAL, "model.grounding.threshold=0"], r"model\.grounding\.threshold"),

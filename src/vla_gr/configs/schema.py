@@ -93,27 +93,22 @@ class CollectConfig:
 
 @dataclass
 class DemoConfig:
-    """``vla-gr demo``: a few episodes, a metrics table, a GIF and a top-down PNG."""
+    """``vla-gr demo``: the shipped agent evaluated on a few episodes (see ``vla_gr.demo``)."""
 
+    agent: str = "checkpoint"  # an eval agent name (checkpoint, true_mask, expert, random, ...)
+    checkpoint: str = "checkpoints/vla_gr_cpu"  # the agent shipped in the repository
     split: str = "val"
-    num_episodes: int = 3
+    num_episodes: int = 20
     first_episode: int = 0
+    workers: int = 2
     output_dir: str = "outputs/demo"
-    gif_image_size: int = 128  # side of each GIF panel (RGB and depth re-rendered at this size)
-    gif_stride: int = 1  # keep every k-th step in the GIF
-    gif_fps: float = 10.0
-    png_size: int = 384  # side of the top-down map in the PNG (legend added on the right)
+    train: bool = False  # collect (if missing) + train this recipe's agent, then evaluate it
 
     def __post_init__(self) -> None:
         check_choice("demo.split", self.split, SPLITS)
         check_positive("demo.num_episodes", self.num_episodes)
         check_positive("demo.first_episode", self.first_episode, allow_zero=True)
-        if not 16 <= self.gif_image_size <= 1024:
-            raise ValueError(f"demo.gif_image_size={self.gif_image_size} must be in [16, 1024]")
-        check_positive("demo.gif_stride", self.gif_stride)
-        check_positive("demo.gif_fps", self.gif_fps)
-        if self.png_size < 16:
-            raise ValueError(f"demo.png_size={self.png_size} must be >= 16")
+        check_positive("demo.workers", self.workers)
 
 
 @dataclass

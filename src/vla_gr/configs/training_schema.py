@@ -141,12 +141,6 @@ class LoggingConfig:
 
 def check_training_for_agent(training: TrainingConfig, agent: str) -> None:
     """Cross-checks of ``training.*`` against ``model.agent``; raises ``ValueError``."""
-    if agent == "dual_system" and training.eval_episodes > 0:
-        raise ValueError(
-            f"training.eval_episodes={training.eval_episodes}: closed-loop episodes need the "
-            "dual system's S2 inference, which model.agent=dual_system does not have yet; "
-            "set training.eval_episodes=0"
-        )
     if training.best_metric == "goal_iou" and agent != "dual_system":
         raise ValueError(
             f"training.best_metric='goal_iou' needs the goal head of model.agent=dual_system "
