@@ -17,6 +17,7 @@ from vla_gr.cli import main as cli_main
 from vla_gr.configs import load_config
 from vla_gr.evaluate import EvalInputError, evaluate, expand_aliases, run_from_cli
 from vla_gr.evaluation import AGENTS
+from vla_gr.evaluation.agents import register_agent
 from vla_gr.evaluation.summary import BREAKDOWNS, without_timing
 
 FAST = ["eval.progress=false", "eval.gif_successes=1", "eval.gif_per_cause=0", "seed=3"]
@@ -325,3 +326,47 @@ def test_true_mask_agent_reports_s1_and_s2_latency_on_its_schedule(tmp_path):
     steps = len(rows_of(tmp_path)[0]["actions"])
     assert lat["s1"]["calls"] == lat["decision"]["calls"] == steps
     assert lat["s2"]["calls"] == -(-steps // 3)  # a tick every 3 control steps, from step 0
+
+
+class _BlindDualSystem:
+    """The dual system with a goal likelihood of zero everywhere (an instruction that names
+    nothing it can ground): it only explores, and its goal confidence stays 0."""
+
+    def __init__(self, cfg, env) -> None:
+        from vla_gr.policy.dual_system import GroundedDualSystem
+
+        self.system = GroundedDualSystem(
+            lambda obs: np.zeros(obs["depth"].shape[:2], np.float32),
+            navigator=cfg.model.navigator, field=cfg.model.gr_field, pursuit=cfg.model.pursuit,
+        )  # fmt: skip
+
+    def reset(self, seed=None):
+        self.system.reset()
+
+    def act(self, obs):
+        return self.system.step(obs)
+
+    def episode_summary(self):
+        return self.system.episode_summary()
+
+    def parameters(self):
+        return {}
+
+
+register_agent("test_blind_dual_system")(_BlindDualSystem)
+
+
+def test_an_agent_that_never_confirms_a_goal_is_flagged(tmp_path):
+    def run(out, agent):
+        args = [f"output_dir={out}", *FAST, f"agent={agent}", "num_episodes=2"]
+        return evaluate(load_config("config_cpu", [*expand_aliases(args), *SHORT])[1])
+
+    metrics = run(tmp_path, "test_blind_dual_system")
+    assert [r["agent"]["goal_confidence"] for r in rows_of(tmp_path)] == [0.0, 0.0]
+    assert metrics["low_goal_confidence"] == [0, 1]
+    assert "Low goal confidence** in 2 episode(s)" in (tmp_path / "report.md").read_text()
+    # an agent without a planner reports nothing to flag
+    assert run(tmp_path / "expert", "expert")["low_goal_confidence"] == []
+
+
+SHORT = ["env.max_episode_steps=20"]

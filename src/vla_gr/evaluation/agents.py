@@ -4,6 +4,8 @@ An agent has ``reset(seed)`` (episode start; ``seed`` makes any randomness repla
 ``act(obs) -> float32 (3,)`` and ``parameters() -> {part: count}``. It may also set
 ``last_timings`` ({part: seconds} of its latest ``act``, e.g. ``{"s1": .., "s2": ..}``) so
 that the harness reports latency per part; otherwise the whole ``act`` is one "decision".
+An agent with a planner may have ``episode_summary() -> dict`` (e.g. its goal confidence),
+kept in the episode's row under ``agent``.
 
 A factory receives ``(cfg, env)``: the validated ``VLAGRConfig`` and the environment the
 agent will run in, so that privileged agents (the geodesic expert) can read the world.
@@ -112,6 +114,11 @@ class PolicyAgent:
         """The policy's per-part seconds of its last decision (S1, S2), if it reports them."""
         return getattr(self.policy, "last_timings", None)
 
+    def episode_summary(self) -> dict:
+        """The dual system's goal confidence and last mode ({} for an end-to-end policy)."""
+        system = getattr(self.policy, "dual_system", None)
+        return system.episode_summary() if system is not None else {}
+
     def parameters(self) -> dict[str, int]:
         return module_parameters(self.policy) if isinstance(self.policy, nn.Module) else {}
 
@@ -155,6 +162,9 @@ class TrueMaskAgent:
     @property
     def last_timings(self) -> dict[str, float]:
         return self.system.last_timings
+
+    def episode_summary(self) -> dict:
+        return self.system.episode_summary()
 
     def parameters(self) -> dict[str, int]:
         return {}

@@ -15,7 +15,7 @@ import numpy as np
 
 from vla_gr.envs.metrics import format_table
 from vla_gr.evaluation.causes import CAUSES
-from vla_gr.evaluation.summary import BREAKDOWNS
+from vla_gr.evaluation.summary import BREAKDOWNS, LOW_GOAL_CONFIDENCE
 
 log = logging.getLogger(__name__)
 
@@ -122,6 +122,14 @@ def write_report(out_dir: Path, metrics: dict, rows: Sequence[dict], pictures: d
         lines += [f"### {key}", "", format_table(metrics["breakdowns"][key]), ""]
     lines += ["## Failure causes", "", "| cause | episodes |", "|---|---|"]
     lines += [f"| {c} | {n} |" for c, n in metrics["failure_causes"].items()]
+    low = metrics.get("low_goal_confidence") or []
+    if low:
+        lines += [
+            "",
+            f"**Low goal confidence** in {len(low)} episode(s) (the planner never confirmed "
+            f"the instructed object, confidence < {LOW_GOAL_CONFIDENCE}): "
+            + ", ".join(str(i) for i in low[:50]),
+        ]
     lines += ["", "## Latency per decision (ms, batch 1)", ""]
     if metrics["latency_ms"]:
         lines += [format_table(metrics["latency_ms"]), ""]

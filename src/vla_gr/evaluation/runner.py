@@ -98,7 +98,8 @@ def run_episode(
     ``stopped``, ``cause`` (None on success), ``num_rooms``, ``goal_category``,
     ``instruction_kind``, ``distractor_distances`` (after a wrong STOP), ``trace`` (``xy`` (T+1, 2),
     ``goal_pixels`` (T+1,) or -1 without semantic, ``distance`` (T+1,)), ``actions``
-    (T, 3), ``latency_ms`` ({part: (T,)}), ``parameters``.
+    (T, 3), ``latency_ms`` ({part: (T,)}), ``parameters``, ``agent`` (the agent's
+    ``episode_summary()``, {} without one).
     """
     th = thresholds or CauseThresholds(success_distance=env.unwrapped.success_distance)
     obs, info = env.reset(seed=int(index))
@@ -153,6 +154,7 @@ def run_episode(
         "actions": actions,
         "latency_ms": {k: [round(v, 4) for v in vals] for k, vals in latency.items()},
         "parameters": agent.parameters(),
+        "agent": agent.episode_summary() if hasattr(agent, "episode_summary") else {},
     }
 
 

@@ -71,6 +71,20 @@ def latency(rows: Sequence[dict]) -> dict[str, dict]:
     return out
 
 
+#: An episode whose planner never got this confident about any goal is flagged in the report.
+LOW_GOAL_CONFIDENCE = 0.5
+
+
+def low_confidence_episodes(rows: Sequence[dict]) -> list[int]:
+    """Episode indices whose agent reported a goal confidence below ``LOW_GOAL_CONFIDENCE``
+    (it never confirmed the instructed object: unknown words, an unseen goal)."""
+    return [
+        r["episode_index"]
+        for r in rows
+        if r.get("agent", {}).get("goal_confidence", 1.0) < LOW_GOAL_CONFIDENCE
+    ]
+
+
 def summarize_rows(
     rows: Sequence[dict], header: dict, seconds: float, workers: int, ran: int | None = None
 ) -> dict:
@@ -87,6 +101,7 @@ def summarize_rows(
         "metrics": overall(rows),
         "breakdowns": {key: breakdown(rows, key) for key in BREAKDOWNS},
         "failure_causes": cause_counts(rows),
+        "low_goal_confidence": low_confidence_episodes(rows),
         "parameters": rows[0]["parameters"],
         "latency_ms": latency(rows),
         "timing": {

@@ -65,6 +65,13 @@ class GroundedDualSystem:
         self.last_likelihood: np.ndarray | None = None  # (H, W) of the last S2 tick
         self.max_goal_confidence = 0.0
 
+    def episode_summary(self) -> dict:
+        """What S2 concluded this episode: the highest goal confidence and the last mode."""
+        return {
+            "goal_confidence": round(float(self.max_goal_confidence), 4),
+            "last_mode": None if self.plan is None else self.plan.mode,
+        }
+
     def step(self, obs: Mapping) -> np.ndarray:
         """One control step on a single env observation -> action float32 (3,) (v, w, stop)."""
         depth = np.asarray(obs["depth"], dtype=np.float32)  # (H, W, 1)
