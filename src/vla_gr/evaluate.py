@@ -98,6 +98,7 @@ def run_header(cfg, agent: str, source: str, indices: Sequence[int]) -> dict:
     return {
         "agent": agent,
         "checkpoint": e.checkpoint if agent == "checkpoint" else None,
+        "model_overrides": list(e.model_overrides) if agent == "checkpoint" else [],
         "episodes_source": source,
         "first_episode": indices[0],
         "num_episodes": len(indices),

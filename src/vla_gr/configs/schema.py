@@ -118,6 +118,8 @@ class EvalConfig:
     agent: str | None = None  # name in vla_gr.evaluation.AGENTS (None: checkpoint if given)
     agents: list[str] = field(default_factory=list)  # non-empty: compare these agents
     checkpoint: str | None = None  # for agent=checkpoint: <run>/checkpoints/best
+    # inference-only settings changed on the loaded checkpoint, e.g. [navigator.confirm_ticks=3]
+    model_overrides: list[str] = field(default_factory=list)
     split: str = "val"
     episodes: str | None = None  # JSONL file of episode specs (instead of the split)
     num_episodes: int | None = None  # None: 10 of a split, or the whole episodes file

@@ -283,7 +283,9 @@ def _checkpoint_agent(cfg, env) -> PolicyAgent:
 
     check_checkpoint(cfg)
     try:
-        policy = VLAGRPolicy.from_pretrained(cfg.eval.checkpoint, device=cfg.eval.device)
+        policy = VLAGRPolicy.from_pretrained(
+            cfg.eval.checkpoint, device=cfg.eval.device, overrides=cfg.eval.model_overrides
+        )
     except CheckpointError as err:
         raise AgentError(str(err)) from None
     return PolicyAgent(policy.eval(), cfg.eval.device)

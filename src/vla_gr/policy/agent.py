@@ -26,7 +26,7 @@ inference (S2 on the GR field, S1) is ``_dual_system_step``.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import torch
@@ -40,12 +40,16 @@ from vla_gr.core.dual_system import plan_interval
 from vla_gr.core.encoders import PoseEncoder, RGBDEncoder, build_text_encoder, pose_features
 from vla_gr.core.grounding import GoalHead, goal_head_loss, mask_confusion
 from vla_gr.core.trajectory_attention import TransformerBlock
+from vla_gr.errors import ConfigError
 from vla_gr.policy.dual_system import GroundedDualSystem
 from vla_gr.policy.frames import apply_peft, as_instructions, env_obs_to_frame
 
 __all__ = ["VLAGRPolicy"]
 
 _OBS_KEYS = ("rgb", "depth", "pose")
+#: Model settings a loaded checkpoint may change (no weight depends on them): the planner,
+#: its GR field, the S1 follower and the S2 schedule.
+INFERENCE_SETTINGS = ("navigator.", "pursuit.", "gr_field.", "dual_system.planning_frequency_hz")
 
 
 class VLAGRPolicy(nn.Module):
@@ -97,12 +101,16 @@ class VLAGRPolicy(nn.Module):
         return self.config.agent == "dual_system"
 
     @classmethod
-    def from_pretrained(cls, path, device: torch.device | str = "cpu") -> VLAGRPolicy:
+    def from_pretrained(
+        cls, path, device: torch.device | str = "cpu", overrides: Sequence[str] = ()
+    ) -> VLAGRPolicy:
         """Load a training checkpoint folder (``<run>/checkpoints/best``), verified.
 
         The model config comes from the checkpoint's ``config.yaml`` (PEFT layers are
         re-applied before the weights are loaded); the weights are ``model.safetensors``
-        (the EMA averages when training used EMA). Returned in eval mode.
+        (the EMA averages when training used EMA). Returned in eval mode. ``overrides``
+        (``"navigator.confirm_ticks=3"``, ...) change settings that no weight depends on:
+        keys under ``model.`` in :data:`INFERENCE_SETTINGS`.
         """
         from omegaconf import OmegaConf
 
@@ -110,8 +118,16 @@ class VLAGRPolicy(nn.Module):
         saved = OmegaConf.create(loaded.config_yaml)
         if "model" not in saved:
             raise ValueError(f"checkpoint {path}: config.yaml has no model section")
+        for item in overrides:
+            key = item.split("=", 1)[0].strip()
+            if "=" not in item or not key.startswith(INFERENCE_SETTINGS):
+                raise ConfigError(
+                    f"checkpoint override {item!r} must be key=value with a key under "
+                    f"{', '.join(INFERENCE_SETTINGS)} (settings no weight depends on)"
+                )
         schema = OmegaConf.structured(ModelConfig)
-        config = OmegaConf.to_object(OmegaConf.merge(schema, saved.model))
+        merged = OmegaConf.merge(schema, saved.model, OmegaConf.from_dotlist(list(overrides)))
+        config = OmegaConf.to_object(merged)
         policy = cls(config)
         apply_peft(policy, config.peft)
         load_model_state(policy, loaded.model, str(path))

@@ -1,0 +1,73 @@
+"""Export a trained agent for shipping: its weights + config, optional inference settings changed.
+
+    python -m vla_gr.policy.export <run>/checkpoints/best checkpoints/vla_gr_cpu \
+        navigator.confirm_ticks=4
+
+Writes a verified checkpoint folder (``model.safetensors``, ``config.yaml``,
+``trainer_state.json``, ``manifest.json``) without the optimiser / RNG state that only a
+resumed training needs. ``key=value`` overrides may change settings no weight depends on
+(:data:`~vla_gr.policy.agent.INFERENCE_SETTINGS`: the navigator, its GR field, the S1
+follower, the S2 rate); they are validated by loading the result.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from vla_gr.checkpoint import read_checkpoint, save_checkpoint
+from vla_gr.errors import UserError
+
+__all__ = ["export_pretrained"]
+
+
+def export_pretrained(src: str | Path, dst: str | Path, overrides: Sequence[str] = ()) -> Path:
+    """Copy checkpoint ``src`` to folder ``dst`` (replaced) with ``overrides`` applied."""
+    from omegaconf import OmegaConf
+
+    from vla_gr.policy.agent import VLAGRPolicy
+
+    dst = Path(dst)
+    VLAGRPolicy.from_pretrained(src, overrides=overrides)  # checks src and the overrides
+    loaded = read_checkpoint(src)
+    config = OmegaConf.create(loaded.config_yaml)
+    model = OmegaConf.merge(config.model, OmegaConf.from_dotlist(list(overrides)))
+    config.model = model
+    staging = dst.parent / f".export-{dst.name}-{os.getpid()}"
+    if staging.exists():
+        shutil.rmtree(staging)
+    state = {k: v for k, v in loaded.state.items() if k != "rng"}
+    state["exported_from"] = str(src)
+    state["export_overrides"] = list(overrides)
+    written = save_checkpoint(
+        staging, int(loaded.state.get("step", 0)), loaded.model, state,
+        OmegaConf.to_yaml(config), links=(),
+    )  # fmt: skip
+    if dst.exists():
+        shutil.rmtree(dst)
+    os.replace(written, dst)
+    shutil.rmtree(staging)
+    VLAGRPolicy.from_pretrained(dst)  # the result verifies and loads
+    return dst
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m vla_gr.policy.export", description=__doc__)
+    parser.add_argument("src", help="a checkpoint folder, e.g. <run>/checkpoints/best")
+    parser.add_argument("dst", help="the folder to write (replaced if it exists)")
+    parser.add_argument("overrides", nargs="*", help="inference settings, e.g. navigator.x=1")
+    args = parser.parse_args(argv)
+    try:
+        export_pretrained(args.src, args.dst, args.overrides)
+    except (UserError, ValueError, FileNotFoundError) as err:
+        sys.stderr.write(f"{parser.prog}: error: {err}\n")
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

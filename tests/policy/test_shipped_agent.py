@@ -1,0 +1,37 @@
+"""The agent shipped in ``checkpoints/vla_gr_cpu``: it loads, verifies and beats ``random``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from vla_gr.configs import load_config
+from vla_gr.evaluate import evaluate, expand_aliases
+from vla_gr.policy import VLAGRPolicy
+
+SHIPPED = Path(__file__).resolve().parents[2] / "checkpoints" / "vla_gr_cpu"
+
+
+def test_shipped_checkpoint_is_the_dual_system_and_small():
+    policy = VLAGRPolicy.from_pretrained(SHIPPED)  # verifies the SHA-256 manifest
+    assert policy.config.agent == "dual_system" and policy.dual_system.plan_every == 3
+    size = sum(f.stat().st_size for f in SHIPPED.rglob("*") if f.is_file())
+    assert size <= 20 * 2**20
+
+
+def _run(tmp_path: Path, agent: str, episodes: int) -> dict:
+    args = [f"output_dir={tmp_path / agent}", f"agent={agent}", f"num_episodes={episodes}",
+            f"checkpoint={SHIPPED}", "workers=2", "eval.progress=false",
+            "eval.gif_successes=0", "eval.gif_per_cause=0"]  # fmt: skip
+    return evaluate(load_config("config_cpu", expand_aliases(args))[1])["metrics"]
+
+
+def test_shipped_agent_beats_random_by_a_wide_margin(tmp_path):
+    agent, rand = _run(tmp_path, "checkpoint", 10), _run(tmp_path, "random", 10)
+    assert agent["success"] >= rand["success"] + 0.5 and agent["spl"] > rand["spl"] + 0.3
+
+
+@pytest.mark.slow
+def test_shipped_agent_on_100_val_episodes(tmp_path):
+    assert _run(tmp_path, "checkpoint", 100)["success"] >= 0.75
