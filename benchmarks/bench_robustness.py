@@ -14,8 +14,9 @@ Runs ``vla-gr eval`` (the ``config_cpu`` recipe) once per condition on episodes
 - ``actuation_noise``: ``env.actuation_noise=0.1`` (+-10% on v and w, per step).
 
 Prints SR / SPL / collision rate per condition and the SR difference to ``clean``, writes
-``benchmarks/results/bench_robustness_<split>.{json,md}``; each run folder is kept under
-``--output`` (default ``outputs/robustness``).
+``benchmarks/results/bench_robustness_<agent>_<split>.{json,md}`` (conditions run earlier on the
+same agent and episodes are kept, so ``--conditions`` may be run one at a time); each run
+folder is kept under ``--output`` (default ``outputs/robustness``).
 """
 
 from __future__ import annotations
@@ -104,6 +105,14 @@ def main() -> None:
             "failure_causes": m["failure_causes"],
         }
         print(f"{name}: SR {rows[name]['SR']:.3f} SPL {rows[name]['SPL']:.3f}", flush=True)
+    RESULTS.mkdir(exist_ok=True)
+    stem = RESULTS / f"bench_robustness_{args.agent}_{args.split}"
+    key = [args.agent, args.checkpoint, args.split, args.first, args.episodes]
+    if stem.with_suffix(".json").is_file():  # conditions of an earlier run on the same episodes
+        old = json.loads(stem.with_suffix(".json").read_text())
+        if old.get("key") == key:
+            rows = {**old["rows"], **rows}
+    rows = {name: rows[name] for name in CONDITIONS if name in rows}
     base = rows.get("clean", {}).get("SR")
     command = (
         f"python benchmarks/bench_robustness.py --agent {args.agent} --checkpoint "
@@ -128,10 +137,9 @@ def main() -> None:
               f"wall {time.perf_counter() - t0:.0f} s."]  # fmt: skip
     table = "\n".join(lines)
     print(table)
-    RESULTS.mkdir(exist_ok=True)
-    stem = RESULTS / f"bench_robustness_{args.agent}_{args.split}"
     stem.with_suffix(".md").write_text(table + "\n")
-    stem.with_suffix(".json").write_text(json.dumps({"command": command, "rows": rows}, indent=1))
+    record = {"key": key, "command": command, "rows": rows}
+    stem.with_suffix(".json").write_text(json.dumps(record, indent=1))
 
 
 if __name__ == "__main__":
