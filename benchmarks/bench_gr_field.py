@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from vla_gr.core.gr_field import GRField, GRFieldConfig
-from vla_gr.geometry.camera import intrinsics_from_hfov
+from vla_gr.geometry.camera import box_room_depth
 
 logger = logging.getLogger("bench_gr_field")
 
@@ -36,17 +36,7 @@ PARTS = ("mapping", "masses", "poisson", "metric", "fast_marching", "path", "fea
 
 def room_depth(pose, n: int, hfov: float = 79.0, camera_height: float = 0.88) -> np.ndarray:
     """Analytic z-depth (n, n) of the box room with a floor seen from ``pose`` (x, y, yaw)."""
-    K = intrinsics_from_hfov(n, n, hfov)
-    px, py, yaw = pose
-    a = np.arange(n) + 0.5
-    left = np.broadcast_to(-(a - K.cx) / K.fx, (n, n))
-    up = np.broadcast_to((-(a - K.cy) / K.fy)[:, None], (n, n))
-    dx, dy = np.cos(yaw) - np.sin(yaw) * left, np.sin(yaw) + np.cos(yaw) * left
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ts = [(ROOM[0] - px) / dx, (ROOM[1] - px) / dx, (ROOM[2] - py) / dy, (ROOM[3] - py) / dy]
-        ts.append(np.where(up < 0, camera_height / -up, np.inf))
-    ts = np.stack([np.where(t > 1e-9, t, np.inf) for t in ts])
-    return np.minimum(ts.min(axis=0), 9.99).astype(np.float32)
+    return np.minimum(box_room_depth(pose, ROOM, n, hfov, camera_height), 9.99)
 
 
 def trajectory(steps: int) -> list[tuple[float, float, float]]:

@@ -88,3 +88,18 @@ def test_ego_world_round_trip_and_known_rotation():
     torch.testing.assert_close(one, torch.tensor([[[2.0, 4.0]]]))
     with pytest.raises(ValueError, match="pose"):
         ego_to_world(pts, torch.zeros(3, 2))
+
+
+def test_box_room_depth_is_analytic():
+    from vla_gr.geometry.camera import box_room_depth
+
+    n, h = 32, 0.88
+    depth = box_room_depth((0.0, 0.0, 0.0), (-4.0, 3.0, -10.0, 10.0), n, 79.0, h)  # (n, n)
+    K = intrinsics_from_hfov(n, n, 79.0)
+    up = -((np.arange(n) + 0.5) - K.cy) / K.fy  # (n,) per unit depth, rows
+    above = up > 0
+    # a wall facing the camera has constant planar depth: its distance
+    np.testing.assert_allclose(depth[above][:, n // 2 - 4 : n // 2 + 4], 3.0, rtol=1e-6)
+    # the floor below the horizon: camera height over the ray's drop per unit depth
+    floor = np.minimum(h / -up[~above], 3.0)  # rows below; the wall still bounds them
+    np.testing.assert_allclose(depth[~above][:, n // 2], floor, rtol=1e-5)

@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from vla_gr.geometry.robot_spec import CAMERA_HEIGHT, MAX_DEPTH, MIN_DEPTH
@@ -159,3 +160,25 @@ def column_bearings(width: int, hfov_deg: float) -> torch.Tensor:
 def _check_pose(pose: torch.Tensor, batch: int) -> None:
     if pose.ndim != 2 or pose.shape != (batch, 3):
         raise ValueError(f"pose must be (B={batch}, 3) as (x, y, yaw), got {tuple(pose.shape)}")
+
+
+def box_room_depth(
+    pose, room: tuple[float, float, float, float], size: int, hfov_deg: float, camera_height: float
+) -> np.ndarray:
+    """Analytic planar depth (size, size) of an empty box room with a floor, seen from ``pose``.
+
+    ``room`` = (x0, x1, y0, y1) wall positions (m), ``pose`` = (x, y, yaw) inside it; the
+    camera looks horizontally at ``camera_height``. Rays that hit nothing are ``inf``. For
+    tests and benchmarks of the mapping without a simulator.
+    """
+    K = intrinsics_from_hfov(size, size, hfov_deg)
+    px, py, yaw = pose
+    a = np.arange(size) + 0.5  # (S,)
+    left = np.broadcast_to(-(a - K.cx) / K.fx, (size, size))  # (S, S) per unit depth
+    up = np.broadcast_to((-(a - K.cy) / K.fy)[:, None], (size, size))  # (S, S)
+    dx, dy = np.cos(yaw) - np.sin(yaw) * left, np.sin(yaw) + np.cos(yaw) * left  # (S, S)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ts = [(room[0] - px) / dx, (room[1] - px) / dx, (room[2] - py) / dy, (room[3] - py) / dy]
+        ts.append(np.where(up < 0, camera_height / -up, np.inf))
+    ts = np.stack([np.where(t > 1e-9, t, np.inf) for t in ts])  # (5, S, S)
+    return ts.min(axis=0).astype(np.float32)  # (S, S)

@@ -13,7 +13,7 @@ from vla_gr.core.dual_system.pure_pursuit import (
 )
 from vla_gr.core.gr_field import GRFieldConfig
 from vla_gr.core.gr_field.navigator import Navigator, NavigatorConfig, NavPlan
-from vla_gr.geometry.camera import intrinsics_from_hfov
+from vla_gr.geometry.camera import box_room_depth, intrinsics_from_hfov
 from vla_gr.geometry.pose2d import lookahead_target
 
 HFOV, CAM_H, N = 79.0, 0.88, 32
@@ -22,17 +22,7 @@ ROOM = (-3.0, 3.0, -2.0, 2.0)  # x0, x1, y0, y1 of a box room around the start (
 
 def room_depth(pose, room=ROOM, n=N):
     """Analytic z-depth (n, n, 1) of an axis-aligned box room with a floor seen from ``pose``."""
-    K = intrinsics_from_hfov(n, n, HFOV)
-    px, py, yaw = pose
-    a = np.arange(n) + 0.5
-    left = np.broadcast_to(-(a - K.cx) / K.fx, (n, n))
-    up = np.broadcast_to((-(a - K.cy) / K.fy)[:, None], (n, n))
-    dx, dy = np.cos(yaw) - np.sin(yaw) * left, np.sin(yaw) + np.cos(yaw) * left
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ts = [(room[0] - px) / dx, (room[1] - px) / dx, (room[2] - py) / dy, (room[3] - py) / dy]
-        ts.append(np.where(up < 0, CAM_H / -up, np.inf))
-    ts = np.stack([np.where(t > 1e-9, t, np.inf) for t in ts])
-    return ts.min(axis=0).astype(np.float32)[..., None]
+    return box_room_depth(pose, room, n, HFOV, CAM_H)[..., None]
 
 
 def wall_goal(depth):
