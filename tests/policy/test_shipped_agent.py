@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+import torch
 
 from vla_gr.configs import load_config
 from vla_gr.evaluate import evaluate, expand_aliases
@@ -36,3 +37,21 @@ def test_shipped_agent_beats_random_by_a_wide_margin(tmp_path):
 @pytest.mark.slow
 def test_shipped_agent_on_100_val_episodes(tmp_path):
     assert _run(tmp_path, "checkpoint", 100)["success"] >= 0.35  # test 0-499: 0.418
+
+
+def test_inference_settings_can_change_on_load_and_export(tmp_path):
+    from vla_gr.configs import ConfigError
+    from vla_gr.policy.export import export_pretrained
+
+    policy = VLAGRPolicy.from_pretrained(SHIPPED, overrides=["navigator.confirm_ticks=4"])
+    assert policy.dual_system.navigator.config.confirm_ticks == 4
+    with pytest.raises(ConfigError, match="settings no weight depends on"):
+        VLAGRPolicy.from_pretrained(SHIPPED, overrides=["goal_head.stem_channels=8"])
+    out = export_pretrained(SHIPPED, tmp_path / "exported", ["pursuit.lookahead=0.8"])
+    assert sorted(p.name for p in out.iterdir()) == [
+        "config.yaml", "manifest.json", "model.safetensors", "trainer_state.json"
+    ]  # fmt: skip
+    again = VLAGRPolicy.from_pretrained(out)
+    assert again.dual_system.follower.config.lookahead == 0.8
+    for (name, a), (_, b) in zip(policy.state_dict().items(), again.state_dict().items()):
+        assert torch.equal(a, b), name  # the same weights
