@@ -58,6 +58,10 @@ bench: setup
 	$(PY) benchmarks/bench_heads.py
 	$(PY) benchmarks/bench_gr_field.py
 	$(PY) benchmarks/bench_train.py
+	$(PY) benchmarks/bench_eval.py
+	$(PY) benchmarks/bench_navigator.py --split val --first 50 --episodes 100 --plan-every 3 --workers 2
+	$(PY) benchmarks/bench_goal_head.py --checkpoint checkpoints/vla_gr_cpu --episodes 60
+	$(PY) benchmarks/bench_robustness.py --checkpoint checkpoints/vla_gr_cpu --split test --episodes 100 --workers 2
 
 clean:
 	rm -rf $(VENV) outputs .pytest_cache
