@@ -335,10 +335,9 @@ class _BlindDualSystem:
     def __init__(self, cfg, env) -> None:
         from vla_gr.policy.dual_system import GroundedDualSystem
 
-        self.system = GroundedDualSystem(
-            lambda obs: np.zeros(obs["depth"].shape[:2], np.float32),
-            navigator=cfg.model.navigator, field=cfg.model.gr_field, pursuit=cfg.model.pursuit,
-        )  # fmt: skip
+        self.system = GroundedDualSystem.from_model_config(
+            lambda obs: np.zeros(obs["depth"].shape[:2], np.float32), cfg.model
+        )
 
     def reset(self, seed=None):
         self.system.reset()

@@ -132,20 +132,10 @@ class TrueMaskAgent:
     """
 
     def __init__(self, cfg, env) -> None:
-        from vla_gr.core.dual_system import plan_interval
         from vla_gr.policy.dual_system import GroundedDualSystem
 
-        m = cfg.model
         self.env = env
-        self.system = GroundedDualSystem(
-            self._true_mask,
-            navigator=m.navigator,
-            field=m.gr_field,
-            pursuit=m.pursuit,
-            plan_every=plan_interval(
-                m.dual_system.control_frequency_hz, m.dual_system.planning_frequency_hz
-            ),
-        )
+        self.system = GroundedDualSystem.from_model_config(self._true_mask, cfg.model)
 
     def _true_mask(self, obs) -> np.ndarray:
         if "semantic" not in obs:

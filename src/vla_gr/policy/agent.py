@@ -36,7 +36,6 @@ from torch.utils.checkpoint import checkpoint
 from vla_gr.checkpoint import load_model_state, read_checkpoint
 from vla_gr.configs.model_schema import ModelConfig
 from vla_gr.core.diffusion_policy import DiffusionPolicy
-from vla_gr.core.dual_system import plan_interval
 from vla_gr.core.encoders import PoseEncoder, RGBDEncoder, build_text_encoder, pose_features
 from vla_gr.core.grounding import GoalHead, goal_head_loss, mask_confusion
 from vla_gr.core.trajectory_attention import TransformerBlock
@@ -267,14 +266,7 @@ class VLAGRPolicy(nn.Module):
     def _build_dual_system(self, c: ModelConfig) -> None:
         """S2's goal head (trained) + the navigator on the GR field and the S1 follower."""
         self.goal_head = GoalHead(c.goal_head)
-        d = c.dual_system
-        self.dual_system = GroundedDualSystem(
-            self.goal_likelihood,
-            navigator=c.navigator,
-            field=c.gr_field,
-            pursuit=c.pursuit,
-            plan_every=plan_interval(d.control_frequency_hz, d.planning_frequency_hz),
-        )
+        self.dual_system = GroundedDualSystem.from_model_config(self.goal_likelihood, c)
 
     @torch.no_grad()
     def goal_likelihood(self, obs: Mapping) -> np.ndarray:

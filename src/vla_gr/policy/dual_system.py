@@ -22,7 +22,7 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 
-from vla_gr.core.dual_system import PurePursuit, PursuitConfig
+from vla_gr.core.dual_system import PurePursuit, PursuitConfig, plan_interval
 from vla_gr.core.gr_field import GRFieldConfig, Navigator, NavigatorConfig, NavPlan
 
 __all__ = ["GoalLikelihood", "GroundedDualSystem"]
@@ -55,6 +55,19 @@ class GroundedDualSystem:
         #: seconds of the last step's parts: ``s1`` always, ``s2`` on planner ticks
         self.last_timings: dict[str, float] = {}
         self.reset()
+
+    @classmethod
+    def from_model_config(cls, goal_likelihood: GoalLikelihood, model) -> GroundedDualSystem:
+        """Built from a ``ModelConfig``: ``navigator``, ``gr_field``, ``pursuit`` and the S2
+        schedule from ``dual_system``'s control and planning rates."""
+        d = model.dual_system
+        return cls(
+            goal_likelihood,
+            navigator=model.navigator,
+            field=model.gr_field,
+            pursuit=model.pursuit,
+            plan_every=plan_interval(d.control_frequency_hz, d.planning_frequency_hz),
+        )
 
     def reset(self) -> None:
         """New episode: empty map, no plan; the next step runs S2."""
