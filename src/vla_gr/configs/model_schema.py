@@ -16,7 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 from vla_gr.core.diffusion_policy.config import HeadConfig
-from vla_gr.core.dual_system.config import DualSystemConfig
+from vla_gr.core.dual_system.config import DualSystemConfig, S1Config
 from vla_gr.core.dual_system.pure_pursuit import PursuitConfig
 from vla_gr.core.encoders.config import EncodersConfig
 from vla_gr.core.gr_field.config import GRFieldConfig
@@ -29,7 +29,7 @@ AGENTS = ("end_to_end", "dual_system")
 #: Submodules ``model.freeze`` may name, per ``model.agent``.
 FREEZABLE = {
     "end_to_end": ("vision", "text", "pose", "fusion", "head"),
-    "dual_system": ("goal_head",),
+    "dual_system": ("goal_head", "s1"),
 }
 #: Component fields that follow a model key (``(component, field) -> key``).
 FOLLOWS = {
@@ -75,7 +75,8 @@ class ModelConfig:
     ``dual_system.action_dim``) follow the model's keys (set those); setting them to
     something else fails.
     ``model.agent=dual_system`` composes ``goal_head`` (S2's grounding), ``navigator`` on
-    ``gr_field`` (S2's plan) and ``pursuit`` (S1), scheduled by ``dual_system``'s
+    ``gr_field`` (S2's plan) and ``s1`` (the learned S1; ``pursuit`` when
+    ``s1.kind=pure_pursuit``), scheduled by ``dual_system``'s
     ``planning_frequency_hz`` / ``control_frequency_hz``; the end-to-end agent uses
     ``encoders`` and ``head``.
     """
@@ -94,7 +95,8 @@ class ModelConfig:
     goal_head: GoalHeadConfig = field(default_factory=GoalHeadConfig)  # S2's grounding
     grounding: GroundingConfig = field(default_factory=GroundingConfig)  # its loss, metrics
     navigator: NavigatorConfig = field(default_factory=NavigatorConfig)  # S2's behaviour
-    pursuit: PursuitConfig = field(default_factory=PursuitConfig)  # S1: waypoint follower
+    pursuit: PursuitConfig = field(default_factory=PursuitConfig)  # S1 ablation: follower
+    s1: S1Config = field(default_factory=S1Config)  # S1: the learned controller
     freeze: list[str] = field(default_factory=list)  # submodules whose weights stay fixed
     peft: PeftConfig = field(default_factory=PeftConfig)
 

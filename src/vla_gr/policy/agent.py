@@ -36,6 +36,7 @@ from torch.utils.checkpoint import checkpoint
 from vla_gr.checkpoint import load_model_state, read_checkpoint
 from vla_gr.configs.model_schema import ModelConfig
 from vla_gr.core.diffusion_policy import DiffusionPolicy
+from vla_gr.core.dual_system import S1Policy
 from vla_gr.core.encoders import PoseEncoder, RGBDEncoder, build_text_encoder, pose_features
 from vla_gr.core.grounding import GoalHead, goal_head_loss, mask_confusion
 from vla_gr.core.trajectory_attention import TransformerBlock
@@ -47,8 +48,19 @@ __all__ = ["VLAGRPolicy"]
 
 _OBS_KEYS = ("rgb", "depth", "pose")
 #: Model settings a loaded checkpoint may change (no weight depends on them): the planner,
-#: its GR field, the S1 follower and the S2 schedule.
-INFERENCE_SETTINGS = ("navigator.", "pursuit.", "gr_field.", "dual_system.planning_frequency_hz")
+#: its GR field, which S1 drives and how it samples, the follower and the S2 schedule.
+INFERENCE_SETTINGS = (
+    "navigator.",
+    "pursuit.",
+    "gr_field.",
+    "dual_system.planning_frequency_hz",
+    "s1.kind",
+    "s1.use_s2",
+    "s1.stop_threshold",
+    "s1.n_action_steps",
+    "s1.head.num_inference_steps",
+    "s1.head.sampler",
+)
 
 
 class VLAGRPolicy(nn.Module):
@@ -264,9 +276,11 @@ class VLAGRPolicy(nn.Module):
 
     # ------------------------------------------------------------------ inference
     def _build_dual_system(self, c: ModelConfig) -> None:
-        """S2's goal head (trained) + the navigator on the GR field and the S1 follower."""
+        """S2's goal head + the navigator on the GR field; S1 (the learned network is built
+        whatever ``s1.kind`` says, so that one checkpoint serves both S1 kinds)."""
         self.goal_head = GoalHead(c.goal_head)
-        self.dual_system = GroundedDualSystem.from_model_config(self.goal_likelihood, c)
+        self.s1 = S1Policy(c.s1)
+        self.dual_system = GroundedDualSystem.from_model_config(self.goal_likelihood, c, self.s1)
 
     @torch.no_grad()
     def goal_likelihood(self, obs: Mapping) -> np.ndarray:

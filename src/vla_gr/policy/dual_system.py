@@ -4,14 +4,15 @@ One control step of :class:`GroundedDualSystem` (batch 1, the env's observation)
 
     step     0    1    2    3    4    5    6  ...   (plan_every = 3; reset() -> step 0)
     S2       X    .    .    X    .    .    X        goal likelihood -> Navigator.plan()
-    S1       X    X    X    X    X    X    X        PurePursuit.act() on the latest plan
+    S1       X    X    X    X    X    X    X        S1 acts on the latest plan
 
 S2 = a goal-likelihood source (the learned goal head of
 :mod:`vla_gr.core.grounding`, or any callable; evaluation's privileged ablation passes the
 true mask) + :class:`~vla_gr.core.gr_field.Navigator` (map, masses, potential, metric,
-geodesic; look around, multi-tick confirmation, approach, verify, recover, stop). S1 =
-:class:`~vla_gr.core.dual_system.PurePursuit`, which carries the plan's waypoints into the
-current robot frame by odometry between ticks and checks depth for obstacles ahead. The
+geodesic; look around, multi-tick confirmation, approach, verify, recover, stop). S1
+(``model.s1.kind``) = the learned :class:`~vla_gr.core.dual_system.LearnedFollower` (RGB-D +
+the plan -> action chunk and STOP) or :class:`~vla_gr.core.dual_system.PurePursuit`; both
+carry the plan's waypoints into the current robot frame by odometry between ticks. The
 schedule is :func:`~vla_gr.core.dual_system.plan_interval` of the configured S2 and S1 rates.
 """
 
@@ -22,7 +23,13 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 
-from vla_gr.core.dual_system import PurePursuit, PursuitConfig, plan_interval
+from vla_gr.core.dual_system import (
+    LearnedFollower,
+    PurePursuit,
+    PursuitConfig,
+    S1Policy,
+    plan_interval,
+)
 from vla_gr.core.gr_field import GRFieldConfig, Navigator, NavigatorConfig, NavPlan
 
 __all__ = ["GoalLikelihood", "GroundedDualSystem"]
@@ -38,6 +45,7 @@ class GroundedDualSystem:
         goal_likelihood: the S2 perception, ``obs -> (H, W)`` in [0, 1].
         navigator, field, pursuit: configs of the navigator, its GR field and the follower.
         plan_every: control steps per S2 tick.
+        s1: the learned S1 network; None = the pure-pursuit follower (``pursuit``).
     """
 
     def __init__(
@@ -47,26 +55,33 @@ class GroundedDualSystem:
         field: GRFieldConfig | None = None,
         pursuit: PursuitConfig | None = None,
         plan_every: int = 1,
+        s1: S1Policy | None = None,
     ) -> None:
         self.goal_likelihood = goal_likelihood
         self.navigator = Navigator(navigator, field, plan_every=plan_every)
-        self.follower = PurePursuit(pursuit)
+        self.follower = PurePursuit(pursuit) if s1 is None else LearnedFollower(s1)
         self.plan_every = self.navigator.plan_every
         #: seconds of the last step's parts: ``s1`` always, ``s2`` on planner ticks
         self.last_timings: dict[str, float] = {}
         self.reset()
 
     @classmethod
-    def from_model_config(cls, goal_likelihood: GoalLikelihood, model) -> GroundedDualSystem:
-        """Built from a ``ModelConfig``: ``navigator``, ``gr_field``, ``pursuit`` and the S2
-        schedule from ``dual_system``'s control and planning rates."""
+    def from_model_config(
+        cls, goal_likelihood: GoalLikelihood, model, s1: S1Policy | None = None
+    ) -> GroundedDualSystem:
+        """Built from a ``ModelConfig``: ``navigator``, ``gr_field``, the S1 of ``s1.kind``
+        (``s1`` is the learned network, used when the kind is ``learned``) and the S2 schedule
+        from ``dual_system``'s control and planning rates."""
         d = model.dual_system
+        if model.s1.kind == "learned" and s1 is None:
+            raise ValueError("model.s1.kind=learned needs the S1 network (s1=S1Policy(...))")
         return cls(
             goal_likelihood,
             navigator=model.navigator,
             field=model.gr_field,
             pursuit=model.pursuit,
             plan_every=plan_interval(d.control_frequency_hz, d.planning_frequency_hz),
+            s1=s1 if model.s1.kind == "learned" else None,
         )
 
     def reset(self) -> None:
@@ -85,25 +100,33 @@ class GroundedDualSystem:
             "last_mode": None if self.plan is None else self.plan.mode,
         }
 
-    def step(self, obs: Mapping) -> np.ndarray:
-        """One control step on a single env observation -> action float32 (3,) (v, w, stop)."""
+    def plan_if_due(self, obs: Mapping) -> float | None:
+        """S2's part of a control step: on a planner tick, the goal likelihood and a new plan
+        (handed to the follower). Returns the tick's seconds, or None between ticks."""
+        if self.steps % self.plan_every:
+            return None
+        t0 = time.perf_counter()
         depth = np.asarray(obs["depth"], dtype=np.float32)  # (H, W, 1)
         pose = np.asarray(obs["pose"], dtype=np.float64).reshape(3)  # (3,)
-        timings = {}
-        if self.steps % self.plan_every == 0:
-            t0 = time.perf_counter()
-            likelihood = np.asarray(self.goal_likelihood(obs), dtype=np.float32)  # (H, W)
-            if likelihood.shape != depth.shape[:2]:
-                raise ValueError(
-                    f"goal likelihood has shape {likelihood.shape}, expected {depth.shape[:2]}"
-                )
-            self.plan = self.navigator.plan({"depth": depth, "pose": pose}, likelihood)
-            self.follower.set_plan(self.plan, pose)
-            self.last_likelihood = likelihood
-            self.max_goal_confidence = max(self.max_goal_confidence, self.plan.goal_confidence)
-            timings["s2"] = time.perf_counter() - t0
+        likelihood = np.asarray(self.goal_likelihood(obs), dtype=np.float32)  # (H, W)
+        if likelihood.shape != depth.shape[:2]:
+            raise ValueError(
+                f"goal likelihood has shape {likelihood.shape}, expected {depth.shape[:2]}"
+            )
+        self.plan = self.navigator.plan({"depth": depth, "pose": pose}, likelihood)
+        self.follower.set_plan(self.plan, pose)
+        self.last_likelihood = likelihood
+        self.max_goal_confidence = max(self.max_goal_confidence, self.plan.goal_confidence)
+        return time.perf_counter() - t0
+
+    def step(self, obs: Mapping) -> np.ndarray:
+        """One control step on a single env observation -> action float32 (3,) (v, w, stop)."""
+        s2_seconds = self.plan_if_due(obs)
+        timings = {} if s2_seconds is None else {"s2": s2_seconds}
         t1 = time.perf_counter()
-        action = self.follower.act(depth, pose)  # (3,)
+        depth = np.asarray(obs["depth"], dtype=np.float32)  # (H, W, 1)
+        pose = np.asarray(obs["pose"], dtype=np.float64).reshape(3)  # (3,)
+        action = self.follower.act(depth, pose, rgb=obs["rgb"])  # (3,)
         timings["s1"] = time.perf_counter() - t1
         self.last_timings = timings
         self.steps += 1

@@ -33,7 +33,7 @@ from vla_gr.errors import UserError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ReplayDriver", "aggregate", "relabelled_records"]
+__all__ = ["ReplayDriver", "aggregate", "check_replay_end", "relabelled_records", "train_run"]
 
 
 class ReplayDriver:
@@ -66,9 +66,9 @@ def _run_rows(run_dir: Path) -> tuple[dict, list[dict]]:
     return header, rows
 
 
-def relabelled_records(run_dir: str | Path) -> Iterator[EpisodeRecord]:
-    """One record per episode of an eval run on ``train`` episodes: the agent's frames with
-    their true goal and distractor masks (replayed; must end where the run ended)."""
+def train_run(run_dir: str | Path) -> tuple[dict, list[dict], dict]:
+    """``(header, rows, env_kwargs)`` of an eval run that must have run on ``train`` episodes;
+    ``env_kwargs`` rebuild its env (with instance segmentation) for a replay."""
     header, rows = _run_rows(Path(run_dir))
     source = header["episodes_source"]
     if not source.startswith("train"):
@@ -77,15 +77,27 @@ def relabelled_records(run_dir: str | Path) -> Iterator[EpisodeRecord]:
         )
     env_keys = ("image_size", "control_hz", "max_episode_steps", "success_distance")
     env_kwargs = {k: header["env"][k] for k in env_keys} | {"split": "train", "semantic": True}
+    return header, rows, env_kwargs
+
+
+def check_replay_end(env, row: dict) -> None:
+    """Raise if the replayed episode did not end where the recorded run ended."""
+    end = env.unwrapped.robot_pose_world()[:2]
+    if not np.allclose(end, row["trace"]["xy"][-1], atol=1e-3):
+        raise RuntimeError(f"episode {row['episode_index']}: the replay ended elsewhere")
+
+
+def relabelled_records(run_dir: str | Path) -> Iterator[EpisodeRecord]:
+    """One record per episode of an eval run on ``train`` episodes: the agent's frames with
+    their true goal and distractor masks (replayed; must end where the run ended)."""
+    _, rows, env_kwargs = train_run(run_dir)
     env = make_env(env_kwargs)
     try:
         for row in rows:
             record, info = run_expert_episode(
                 env, ReplayDriver(row["actions"]), row["episode_index"]
             )
-            end = env.unwrapped.robot_pose_world()[:2]
-            if not np.allclose(end, row["trace"]["xy"][-1], atol=1e-3):
-                raise RuntimeError(f"episode {row['episode_index']}: the replay ended elsewhere")
+            check_replay_end(env, row)
             yield record
     finally:
         env.close()

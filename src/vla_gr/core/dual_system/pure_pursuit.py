@@ -164,8 +164,10 @@ class PurePursuit:
         wps = np.asarray(plan.waypoints, dtype=np.float64).reshape(-1, 2)  # (K, 2)
         self._world = robot_to_map(wps, pose) if len(wps) else None  # (K, 2)
 
-    def act(self, depth, pose) -> np.ndarray:
-        """Action (3,) float32 = (v, w, stop) in [-1, 1] for depth (H, W[, 1]) and pose (3,)."""
+    def act(self, depth, pose, rgb=None) -> np.ndarray:
+        """Action (3,) float32 = (v, w, stop) in [-1, 1] for depth (H, W[, 1]) and pose (3,).
+
+        ``rgb`` is accepted for the follower protocol and not read."""
         cfg = self.config
         pose = np.asarray(pose, dtype=np.float64)
         if self._stop:

@@ -1,0 +1,229 @@
+"""Train the learned S1 of a dual-system agent on relabelled rollouts (:mod:`.s1_data`).
+
+The agent's S2 (goal head) comes from ``init`` and stays fixed; S1 (``model.s1``) is trained
+by imitation of the local teacher: the configured head's loss on the teacher's (v, w) chunk
+of ``model.s1.head.horizon`` steps (the labels of the next steps along the same episode, the
+last one repeated at its end) plus BCE on the teacher's STOP. Whole episodes are held out
+for validation; the S1 weights with the lowest validation loss are written, with
+``model.s1.kind=learned``, as a checkpoint that ``vla-gr eval`` loads like any other.
+
+    python -m vla_gr.training.s1 checkpoints/vla_gr_cpu outputs/s1/flow \
+        --data data/s1/round0 --steps 3000
+    # another head: --set s1.head.objective=l1 (diffusion + s1.head.sampler=ddim,
+    # or s1.head.denoiser=transformer for the trajectory transformer)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import shutil
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from vla_gr.checkpoint import load_model_state, read_checkpoint, save_checkpoint
+from vla_gr.errors import UserError
+from vla_gr.training.optim import build_optimizer, build_scheduler
+from vla_gr.training.s1_data import load_s1_data
+
+log = logging.getLogger(__name__)
+
+__all__ = ["S1Batches", "train_s1"]
+
+
+class S1Batches:
+    """Random batches of S1 samples with teacher chunks assembled within episodes.
+
+    Args:
+        data: the arrays of :func:`~vla_gr.training.s1_data.load_s1_data`, ordered by episode
+            (each episode's frames contiguous, in time order).
+        horizon: chunk length H.
+        indices: the frames to draw from (a train or validation split).
+    """
+
+    def __init__(self, data: dict[str, np.ndarray], horizon: int, indices: np.ndarray) -> None:
+        self.data, self.horizon, self.indices = data, int(horizon), np.asarray(indices)
+        episode = data["episode"]
+        starts = np.r_[True, episode[1:] != episode[:-1]]  # (N,)
+        ends = np.r_[starts[1:], True]  # (N,) last frame of its episode
+        last = np.flatnonzero(ends)  # (E,)
+        self.episode_last = last[np.cumsum(starts) - 1]  # (N,) index of the episode's last frame
+
+    def batch(self, rows: np.ndarray) -> dict[str, torch.Tensor]:
+        """Tensors for frame indices ``rows`` (B,): rgb, depth, plan, chunk (B, H, 2), stop."""
+        steps = rows[:, None] + np.arange(self.horizon)[None]  # (B, H)
+        steps = np.minimum(steps, self.episode_last[rows][:, None])  # (B, H) clipped to episode
+        d = self.data
+        return {
+            "rgb": torch.from_numpy(d["rgb"][rows]),  # (B, 3, s, s) uint8
+            "depth": torch.from_numpy(d["depth"][rows].astype(np.float32)),  # (B, 1, s, s)
+            "plan": torch.from_numpy(d["plan"][rows]),  # (B, P)
+            "chunk": torch.from_numpy(d["teacher"][steps, :2]),  # (B, H, 2)
+            "stop": torch.from_numpy((d["teacher"][rows, 2] > 0).astype(np.float32)),  # (B,)
+        }
+
+    def sample(self, batch_size: int, rng: np.random.Generator) -> dict[str, torch.Tensor]:
+        return self.batch(rng.choice(self.indices, size=batch_size))
+
+    def ordered(self, batch_size: int):
+        for i in range(0, len(self.indices), batch_size):
+            yield self.batch(self.indices[i : i + batch_size])
+
+
+def _build_policy(init: str, settings: Sequence[str], init_s1: bool):
+    """The agent of ``init`` with ``model.s1`` changed by ``settings``; its S2 weights loaded."""
+    from omegaconf import OmegaConf
+
+    from vla_gr.configs.model_schema import ModelConfig
+    from vla_gr.policy.agent import VLAGRPolicy
+    from vla_gr.policy.frames import apply_peft
+
+    for item in settings:
+        if "=" not in item or not item.split("=", 1)[0].strip().startswith("s1."):
+            raise UserError(f"S1 setting {item!r} must be key=value with a key under s1.")
+    loaded = read_checkpoint(init)
+    config = OmegaConf.create(loaded.config_yaml)
+    if config.model.get("agent") != "dual_system":
+        raise UserError(f"{init} is not a dual-system agent (model.agent={config.model.agent})")
+    merged = OmegaConf.merge(
+        OmegaConf.structured(ModelConfig),
+        config.model,
+        OmegaConf.from_dotlist([*settings, "s1.kind=learned"]),
+    )
+    policy = apply_peft(VLAGRPolicy(OmegaConf.to_object(merged)), merged.peft)
+    fresh = {k: v for k, v in policy.state_dict().items() if k.startswith("s1.")}
+    tensors = {k: v for k, v in loaded.model.items() if not k.startswith("s1.") or init_s1}
+    load_model_state(policy, {**fresh, **tensors}, str(init))
+    config.model = merged
+    return policy, loaded, config
+
+
+def _validate(policy, batches: S1Batches, batch_size: int) -> dict[str, float]:
+    policy.s1.eval()
+    sums: dict[str, float] = {}
+    n = 0
+    gen = torch.Generator().manual_seed(0)
+    with torch.no_grad():
+        for batch in batches.ordered(batch_size):
+            torch.manual_seed(int(torch.randint(0, 2**31 - 1, (1,), generator=gen)))
+            out = policy.s1(batch)
+            b = len(batch["stop"])
+            for k, v in out.items():
+                sums[k] = sums.get(k, 0.0) + float(v) * b
+            n += b
+    policy.s1.train()
+    return {f"val_{k}": v / max(n, 1) for k, v in sums.items()}
+
+
+def train_s1(
+    init: str | Path,
+    out: str | Path,
+    data: Sequence[str | Path],
+    steps: int = 3000,
+    batch_size: int = 256,
+    lr: float = 1e-3,
+    weight_decay: float = 1e-4,
+    seed: int = 0,
+    settings: Sequence[str] = (),
+    init_s1: bool = False,
+    val_fraction: float = 0.1,
+    eval_every: int = 250,
+) -> dict:
+    """Train S1 and write the agent with the best S1 to ``out``; returns the summary."""
+    torch.manual_seed(seed)
+    policy, loaded, config = _build_policy(str(init), settings, init_s1)
+    s1_config = policy.config.s1
+    arrays = load_s1_data(data, s1_config)
+    episodes = np.unique(arrays["episode"])
+    rng = np.random.default_rng(seed)
+    held = set(rng.permutation(episodes)[: max(1, int(round(val_fraction * len(episodes))))])
+    is_val = np.isin(arrays["episode"], list(held))  # (N,)
+    train = S1Batches(arrays, s1_config.head.horizon, np.flatnonzero(~is_val))
+    val = S1Batches(arrays, s1_config.head.horizon, np.flatnonzero(is_val))
+    log.info(
+        "S1 data: %d train / %d val frames, %d stop labels",
+        len(train.indices), len(val.indices), int((arrays["teacher"][:, 2] > 0).sum()),
+    )  # fmt: skip
+    policy.requires_grad_(False)
+    policy.s1.requires_grad_(True)
+    policy.s1.train()
+    optimizer = build_optimizer(policy.s1, lr, weight_decay)
+    scheduler = build_scheduler(optimizer, min(100, steps // 10), steps, 0.05)
+    best, best_state, history = np.inf, None, []
+    t0 = time.perf_counter()
+    for step in range(1, steps + 1):
+        out_step = policy.s1(train.sample(batch_size, rng))
+        optimizer.zero_grad(set_to_none=True)
+        out_step["loss"].backward()
+        torch.nn.utils.clip_grad_norm_(policy.s1.parameters(), 1.0)
+        optimizer.step()
+        scheduler.step()
+        if step % eval_every == 0 or step == steps:
+            row = {"step": step, "loss": float(out_step["loss"]), **_validate(policy, val, 512)}
+            row["seconds"] = round(time.perf_counter() - t0, 1)
+            history.append(row)
+            log.info("S1 %s", json.dumps(row))
+            if row["val_loss"] < best:
+                best = row["val_loss"]
+                best_state = {k: v.clone() for k, v in policy.s1.state_dict().items()}
+    policy.s1.load_state_dict(best_state)
+    summary = {"best_val_loss": best, "history": history, "data": [str(d) for d in data]}
+    _write_agent(policy, loaded, config, Path(out), steps, summary)
+    return summary
+
+
+def _write_agent(policy, loaded, config, out: Path, steps: int, summary: dict) -> None:
+    from omegaconf import OmegaConf
+
+    from vla_gr.policy.agent import VLAGRPolicy
+
+    state = {k: v for k, v in loaded.state.items() if k != "rng"}
+    state.update(s1_training=summary, s1_steps=steps)
+    staging = out.parent / f".s1-{out.name}-{os.getpid()}"
+    tensors = {k: v.detach().contiguous() for k, v in policy.state_dict().items()}
+    written = save_checkpoint(
+        staging, int(loaded.state.get("step", 0)), tensors, state, OmegaConf.to_yaml(config),
+        links=(),
+    )  # fmt: skip
+    if out.exists():
+        shutil.rmtree(out)
+    os.replace(written, out)
+    shutil.rmtree(staging)
+    VLAGRPolicy.from_pretrained(out)  # the result verifies and loads
+    log.info("wrote %s", out)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m vla_gr.training.s1", description=__doc__)
+    parser.add_argument("init", help="the dual-system agent checkpoint (its S2 is kept)")
+    parser.add_argument("out", help="the checkpoint folder to write (replaced)")
+    parser.add_argument("--data", nargs="+", required=True, help="S1 data folders")
+    parser.add_argument("--steps", type=int, default=3000)
+    parser.add_argument("--batch-size", type=int, default=256)
+    parser.add_argument("--lr", type=float, default=1e-3)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--set", nargs="*", default=[], help="s1.* settings, e.g. s1.dim=64")
+    parser.add_argument("--init-s1", action="store_true", help="start from init's S1 weights")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
+    torch.set_num_threads(max(1, min(2, os.cpu_count() or 1)))
+    try:
+        train_s1(
+            args.init, args.out, args.data, steps=args.steps, batch_size=args.batch_size,
+            lr=args.lr, seed=args.seed, settings=args.set, init_s1=args.init_s1,
+        )  # fmt: skip
+    except UserError as err:
+        sys.stderr.write(f"{parser.prog}: error: {err}\n")
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
