@@ -2,7 +2,8 @@
 
 Importing this package registers the Gymnasium id ``VLAGR/ObjectNav-v0``; without the
 import, ``gymnasium.make("vla_gr.envs:VLAGR/ObjectNav-v0")`` imports it on demand.
-Heavier names (the env class, the expert, episode helpers) load lazily on first use.
+Heavier names (the env class, the expert and the local teacher, episode helpers) load
+lazily on first use.
 """
 
 from __future__ import annotations
@@ -46,6 +47,8 @@ _LAZY = {
     "save_episodes": "vla_gr.envs.episodes",
     "load_episodes": "vla_gr.envs.episodes",
     "GeodesicExpert": "vla_gr.envs.expert",
+    "LocalTeacher": "vla_gr.envs.local_teacher",
+    "LocalTeacherConfig": "vla_gr.envs.local_teacher",
     "EpisodeMeasures": "vla_gr.envs.metrics",
     "RGBDRenderer": "vla_gr.envs.rendering",
 }

@@ -35,6 +35,11 @@ __all__ = [
     "lookahead_point",
     "segment_clearance",
     "pursuit_command",
+    "clearance_map",
+    "planning_maps",
+    "path_target",
+    "field_reaches",
+    "command_action",
 ]
 
 # 8-neighbour offsets (d_row, d_col) and their lengths in cells.
@@ -71,10 +76,45 @@ def clearance_cost(
     occupancy = np.asarray(occupancy, dtype=bool)
     if not occupancy.any():
         return np.ones(occupancy.shape)
-    clearance = ndimage.distance_transform_edt(~occupancy) * cell_size - robot_radius  # (H, W)
+    clearance = clearance_map(occupancy, cell_size, robot_radius)  # (H, W)
     near = np.clip(1.0 - clearance / margin, 0.0, 1.0)  # (H, W)
     cost = 1.0 + weight * near**2  # (H, W)
     return np.where(clearance < 0.0, contact_cost, cost)
+
+
+def clearance_map(
+    occupancy: np.ndarray, cell_size: float, robot_radius: float = ROBOT_RADIUS
+) -> np.ndarray:
+    """Free space (H, W) in metres around a robot of ``robot_radius`` centred in each cell.
+
+    Negative where the robot would overlap an occupied cell of ``occupancy`` (H, W) bool;
+    ``inf`` everywhere when nothing is occupied.
+    """
+    occupancy = np.asarray(occupancy, dtype=bool)
+    if not occupancy.any():
+        return np.full(occupancy.shape, np.inf)
+    return ndimage.distance_transform_edt(~occupancy) * cell_size - robot_radius  # (H, W)
+
+
+def planning_maps(
+    occupancy: np.ndarray,
+    cell_size: float,
+    robot_radius: float,
+    margin: float,
+    weight: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Cost per metre (H, W) and clearance in metres (H, W) on ``occupancy`` (H, W) bool.
+
+    See :func:`clearance_cost` and :func:`clearance_map`, for a robot of ``robot_radius``.
+    """
+    cost = clearance_cost(occupancy, cell_size, robot_radius, margin, weight)  # (H, W)
+    return cost, clearance_map(occupancy, cell_size, robot_radius)
+
+
+def field_reaches(field: np.ndarray, rc: np.ndarray) -> bool:
+    """Whether ``field`` (H, W) is finite in the 3 x 3 cells around cell ``rc`` (2,)."""
+    r0, c0 = max(int(rc[0]) - 1, 0), max(int(rc[1]) - 1, 0)
+    return bool(np.isfinite(field[r0 : int(rc[0]) + 2, c0 : int(rc[1]) + 2]).any())
 
 
 def descend_path(
@@ -151,6 +191,35 @@ def lookahead_point(
         while k > 1 and segment_clearance(clearance, grid, path[0], path[k]) < need:
             k -= 1
     return path[k].copy()
+
+
+def path_target(
+    field: np.ndarray,
+    grid: GridSpec,
+    clearance: np.ndarray,
+    start_xy: np.ndarray,
+    lookahead: float,
+    min_clearance: float,
+    end_xy: np.ndarray | None = None,
+) -> np.ndarray:
+    """Pursuit point (2,): :func:`lookahead_point` on the descent of ``field`` (H, W).
+
+    The path starts at ``start_xy`` (2,); when it reaches the field's source, ``end_xy`` (2,)
+    (an exact destination inside the source cell) is appended to it.
+    """
+    path = descend_path(field, grid, start_xy, lookahead + 0.2)  # (N, 2)
+    if end_xy is not None:
+        rc = grid.world_to_cell(path[-1])  # (2,)
+        if grid.in_bounds(rc) and field[rc[0], rc[1]] == 0.0:
+            path = np.concatenate([path, np.asarray(end_xy, np.float64)[None, :2]])  # (N+1, 2)
+    return lookahead_point(path, lookahead, clearance, grid, min_clearance)
+
+
+def command_action(v: float, w: float, max_linear: float, max_angular: float) -> np.ndarray:
+    """Env action (3,) float32 (v, w fractions in [-1, 1], stop = -1) for (v m/s, w rad/s)."""
+    return np.array(
+        [np.clip(v / max_linear, -1, 1), np.clip(w / max_angular, -1, 1), -1.0], dtype=np.float32
+    )
 
 
 def pursuit_command(
@@ -287,14 +356,11 @@ class GeodesicExpert:
         """Cost-aware distance field and clearance map (H, W) for ``occupancy`` (H, W)."""
         cfg, grid = self.config, self._grid
         radius = ROBOT_RADIUS + cfg.radius_slack_cells * grid.cell_size
-        cost = clearance_cost(
+        cost, self._clearance = planning_maps(
             occupancy, grid.cell_size, radius, cfg.clearance_margin, cfg.clearance_weight
-        )  # (H, W)
+        )  # (H, W) each
         walls = occupancy & ~self._footprint  # (H, W)
         self._field = geodesic_distance(cost, self._footprint, walls, grid.cell_size)  # (H, W)
-        self._clearance = (
-            ndimage.distance_transform_edt(~occupancy) * grid.cell_size - radius
-        )  # (H, W) metres of free space around a robot centred in each cell
         self._occupancy = occupancy
 
     def _mark_blocked(self, pose: np.ndarray) -> None:
@@ -339,7 +405,7 @@ class GeodesicExpert:
             if abs(err) <= cfg.face_tolerance or self._face_steps > cfg.patience_steps // 2:
                 return np.array([0.0, 0.0, 1.0], np.float32)
             w = math.copysign(wmax * min(1.0, 2.0 * abs(err)), err)
-            return self._to_action(0.0, w, vmax, wmax)
+            return command_action(0.0, w, vmax, wmax)
         blocked = self._is_blocked(pose, vmax / float(u.control_hz), wmax / float(u.control_hz))
         if blocked:
             self._blocked_events += 1
@@ -358,10 +424,14 @@ class GeodesicExpert:
             return np.array([0.0, 0.0, 1.0], np.float32)
         if self._backup_left > 0:
             self._backup_left -= 1
-            return self._to_action(0.5 * self._backup_sign * vmax, 0.0, vmax, wmax)
-        path = descend_path(self._field, self._grid, pose[:2], cfg.lookahead + 0.2)  # (N, 2)
-        target = lookahead_point(
-            path, cfg.lookahead, self._clearance, self._grid, cfg.min_free_clearance
+            return command_action(0.5 * self._backup_sign * vmax, 0.0, vmax, wmax)
+        target = path_target(
+            self._field,
+            self._grid,
+            self._clearance,
+            pose[:2],
+            cfg.lookahead,
+            cfg.min_free_clearance,
         )  # (2,)
         touching = self._strained and self._clearance[rc[0], rc[1]] < 0.0
         if touching:
@@ -375,7 +445,7 @@ class GeodesicExpert:
             # Turning in place while touching something: ease away from it as well, since a
             # contact can stall the rotation.
             v = 0.3 * vmax * self._escape_sign(pose)
-        return self._to_action(v, w, vmax, wmax)
+        return command_action(v, w, vmax, wmax)
 
     def _clearance_gradient(self, rc: np.ndarray) -> np.ndarray:
         """Unit direction (2,) as (x, y) of increasing clearance at cell ``rc`` (2,)."""
@@ -397,8 +467,7 @@ class GeodesicExpert:
         return self._since_progress > self.config.patience_steps
 
     def _reachable(self, rc: np.ndarray) -> bool:
-        r0, c0 = max(rc[0] - 1, 0), max(rc[1] - 1, 0)
-        return bool(np.isfinite(self._field[r0 : rc[0] + 2, c0 : rc[1] + 2]).any())
+        return field_reaches(self._field, rc)
 
     def _is_blocked(self, pose: np.ndarray, full_step: float, full_turn: float) -> str | None:
         """'forward' / 'turn' after ``blocked_steps`` steps whose command moved (turned) the
@@ -435,12 +504,6 @@ class GeodesicExpert:
             inside = self._grid.in_bounds(rc)
             room.append(float(self._clearance[rc[0], rc[1]]) if inside else -math.inf)
         return 1.0 if room[0] > room[1] else -1.0
-
-    @staticmethod
-    def _to_action(v: float, w: float, vmax: float, wmax: float) -> np.ndarray:
-        return np.array(
-            [np.clip(v / vmax, -1, 1), np.clip(w / wmax, -1, 1), -1.0], dtype=np.float32
-        )
 
     def act(self, obs=None) -> np.ndarray:
         """Action (3,) float32 to execute; the noise-free label is kept in ``last_label``."""
