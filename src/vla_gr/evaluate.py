@@ -91,14 +91,21 @@ def plan_episodes(cfg) -> tuple[list[int], dict, str]:
 
 
 def run_header(cfg, agent: str, source: str, indices: Sequence[int]) -> dict:
-    """The settings that define an eval run (saved as ``run.json``; compared on resume)."""
-    from vla_gr import __version__
+    """The settings that define an eval run (saved as ``run.json``; compared on resume).
 
+    A variant's header also names the registered agent it builds on (``base_agent``).
+    """
+    from vla_gr import __version__
+    from vla_gr.evaluation.agents import agent_checkpoint, resolve_agent
+
+    base, sub = resolve_agent(agent, cfg)
+    checkpoint = agent_checkpoint(base, sub)
     e, env = cfg.eval, cfg.env
     return {
         "agent": agent,
-        "checkpoint": e.checkpoint if agent == "checkpoint" else None,
-        "model_overrides": list(e.model_overrides) if agent == "checkpoint" else [],
+        **({"base_agent": base} if base != agent else {}),
+        "checkpoint": checkpoint,
+        "model_overrides": list(sub.eval.model_overrides) if checkpoint else [],
         "episodes_source": source,
         "first_episode": indices[0],
         "num_episodes": len(indices),
@@ -124,22 +131,6 @@ def run_header(cfg, agent: str, source: str, indices: Sequence[int]) -> dict:
 def default_agent(cfg) -> str:
     """``eval.agent``, else ``checkpoint`` when ``eval.checkpoint`` is given, else ``expert``."""
     return cfg.eval.agent or ("checkpoint" if cfg.eval.checkpoint else "expert")
-
-
-def check_agent(cfg, agent: str) -> None:
-    """Refuse an unknown agent or an unusable checkpoint before any episode runs."""
-    from vla_gr.evaluation.agents import AgentError, check_agent_name, check_checkpoint
-
-    check_agent_name(agent)
-    if agent == "checkpoint":
-        from vla_gr.checkpoint import CheckpointError
-        from vla_gr.policy import VLAGRPolicy
-
-        check_checkpoint(cfg)
-        try:
-            VLAGRPolicy.from_pretrained(cfg.eval.checkpoint)
-        except CheckpointError as err:
-            raise AgentError(str(err)) from None
 
 
 def _output_dir(cfg, agent: str, source: str) -> Path:
@@ -176,12 +167,13 @@ def evaluate(cfg, agent: str | None = None) -> dict:
     from tqdm import tqdm
 
     from vla_gr.data.collect import make_env
+    from vla_gr.evaluation.agents import check_agent
     from vla_gr.evaluation.report import replay_pictures, select_episodes, write_report
     from vla_gr.evaluation.runner import RowWriter, iter_episode_rows
     from vla_gr.evaluation.summary import summarize_rows
 
     agent = agent or default_agent(cfg)
-    check_agent(cfg, agent)
+    check_agent(agent, cfg)
     indices, env_kwargs, source = plan_episodes(cfg)
     header = run_header(cfg, agent, source, indices)
     out_dir = _output_dir(cfg, agent, source)
@@ -231,22 +223,26 @@ def compare(cfg) -> dict:
     import dataclasses
 
     from vla_gr.envs.metrics import format_table
-    from vla_gr.evaluation.report import table_row
+    from vla_gr.evaluation.agents import check_agent
+    from vla_gr.evaluation.report import agent_row, agents_table, table_row
 
     agents = list(cfg.eval.agents)
-    for agent in agents:  # every input error before the first episode
-        check_agent(cfg, agent)
+    for agent in agents:  # every input error (variants included) before the first episode
+        check_agent(agent, cfg)
     _, _, source = plan_episodes(cfg)
     out_dir = _output_dir(cfg, "compare", source)
-    rows = {}
+    rows, setups = {}, {}
     for agent in agents:
         sub = dataclasses.replace(cfg.eval, output_dir=str(out_dir / agent))
         metrics = evaluate(dataclasses.replace(cfg, eval=sub), agent)
-        rows[agent] = table_row(metrics)
+        rows[agent], setups[agent] = table_row(metrics), agent_row(metrics)
     table = format_table(rows)
-    (out_dir / "compare.json").write_text(json.dumps(rows, indent=1))
-    (out_dir / "compare.md").write_text(f"# Comparison on {source}\n\n{table}\n")
-    return {"output_dir": str(out_dir), "table": table, "rows": rows}
+    both = {k: {**setups[k], **rows[k]} for k in agents}
+    (out_dir / "compare.json").write_text(json.dumps(both, indent=1))
+    (out_dir / "compare.md").write_text(
+        f"# Comparison on {source}\n\n{table}\n\n## Agents\n\n{agents_table(setups)}\n"
+    )
+    return {"output_dir": str(out_dir), "table": table, "rows": both}
 
 
 def run_from_cli(config_name: str, overrides: Sequence[str]) -> int:

@@ -111,13 +111,33 @@ class DemoConfig:
         check_positive("demo.workers", self.workers)
 
 
+#: Registered eval agents a variant may build on (both load a checkpoint's settings).
+VARIANT_AGENTS = ("checkpoint", "true_mask")
+
+
+@dataclass
+class VariantConfig:
+    """A named eval agent (``eval.variants.<name>``): a registered agent on a checkpoint with
+    inference-only overrides, e.g. an ablation of the checkpoint's dual system."""
+
+    checkpoint: str | None = None  # None: eval.checkpoint
+    model_overrides: list[str] = field(default_factory=list)  # replace eval.model_overrides
+    agent: str = "checkpoint"  # the registered agent it builds on: checkpoint | true_mask
+    made_by: str | None = None  # the command that writes the checkpoint (shown if missing)
+
+    def __post_init__(self) -> None:
+        check_choice("eval.variants.<name>.agent", self.agent, VARIANT_AGENTS)
+
+
 @dataclass
 class EvalConfig:
     """``vla-gr eval``: closed-loop evaluation of an agent (or several: ``agents``)."""
 
-    agent: str | None = None  # name in vla_gr.evaluation.AGENTS (None: checkpoint if given)
+    agent: str | None = None  # an AGENTS name or a variant (None: checkpoint if given)
     agents: list[str] = field(default_factory=list)  # non-empty: compare these agents
     checkpoint: str | None = None  # for agent=checkpoint: <run>/checkpoints/best
+    # named agents: a registered agent + checkpoint + overrides (agent=<name>, agents=[...])
+    variants: dict[str, VariantConfig] = field(default_factory=dict)
     # inference-only settings changed on the loaded checkpoint, e.g. [navigator.confirm_ticks=3]
     model_overrides: list[str] = field(default_factory=list)
     split: str = "val"

@@ -10,10 +10,16 @@ kept in the episode's row under ``agent``.
 A factory receives ``(cfg, env)``: the validated ``VLAGRConfig`` and the environment the
 agent will run in, so that privileged agents (the geodesic expert) can read the world.
 Later work registers more agents with :func:`register_agent`.
+
+A *variant* (``eval.variants.<name>``, :class:`~vla_gr.configs.schema.VariantConfig`) is a
+named agent made of a registered one (``checkpoint`` or ``true_mask``), a checkpoint and
+inference-only overrides; :func:`resolve_agent` turns any agent name into the registered
+agent and the config it is built with, in the main process and in every worker alike.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Callable
 from pathlib import Path
@@ -31,10 +37,14 @@ __all__ = [
     "AgentError",
     "PolicyAgent",
     "as_env_action",
+    "agent_checkpoint",
+    "check_agent",
     "check_agent_name",
     "check_checkpoint",
+    "checkpoint_policy",
     "make_agent",
     "register_agent",
+    "resolve_agent",
 ]
 
 AgentFactory = Callable[[object, object], object]
@@ -57,16 +67,65 @@ def register_agent(name: str) -> Callable[[AgentFactory], AgentFactory]:
     return wrap
 
 
-def check_agent_name(name: str) -> None:
-    """AgentError with the valid names when ``name`` is not registered."""
-    if name not in AGENTS:
-        raise AgentError(f"unknown agent {name!r}; valid agents: {', '.join(sorted(AGENTS))}")
+def check_agent_name(name: str, variants=()) -> None:
+    """AgentError with the valid names when ``name`` is neither registered nor a variant."""
+    if name not in AGENTS and name not in variants:
+        raise AgentError(
+            f"unknown agent {name!r}; valid agents: {', '.join(sorted(AGENTS))}; "
+            f"variants: {', '.join(variants) or 'none'}"
+        )
+
+
+def resolve_agent(name: str, cfg) -> tuple[str, object]:
+    """(registered agent, the config it is built with) of a registered agent or a variant.
+
+    A variant builds its ``agent`` with ``eval.checkpoint`` = its checkpoint (None: the
+    eval's) and ``eval.model_overrides`` = its overrides.
+    """
+    variants = cfg.eval.variants
+    clash = [v for v in variants if v in AGENTS]
+    if clash:
+        raise AgentError(
+            f"eval.variants.{clash[0]} has the name of a registered agent; rename the variant"
+        )
+    check_agent_name(name, variants)
+    if name in AGENTS:
+        return name, cfg
+    v = variants[name]
+    sub = dataclasses.replace(
+        cfg.eval,
+        checkpoint=v.checkpoint or cfg.eval.checkpoint,
+        model_overrides=list(v.model_overrides),
+    )
+    return v.agent, dataclasses.replace(cfg, eval=sub)
+
+
+def agent_checkpoint(base: str, cfg) -> str | None:
+    """The checkpoint that registered agent ``base`` loads under ``cfg`` (None: none)."""
+    return cfg.eval.checkpoint if base in ("checkpoint", "true_mask") else None
+
+
+def check_agent(name: str, cfg) -> None:
+    """Refuse an unknown agent or a checkpoint (with its overrides) that cannot drive this
+    eval's env, before any episode runs; a variant's error names it (and its ``made_by``)."""
+    base, sub = resolve_agent(name, cfg)
+    try:
+        if base == "checkpoint":
+            checkpoint_policy(sub)
+        elif base == "true_mask":
+            true_mask_model(sub)
+    except AgentError as err:
+        if name in AGENTS:
+            raise
+        path, made_by = sub.eval.checkpoint, cfg.eval.variants[name].made_by
+        hint = f"; make it with: {made_by}" if made_by and path and not Path(path).exists() else ""
+        raise AgentError(f"agent {name}: {err}{hint}") from None
 
 
 def make_agent(name: str, cfg, env):
-    """The agent ``name`` built for ``cfg`` and ``env``."""
-    check_agent_name(name)
-    return AGENTS[name](cfg, env)
+    """The agent ``name`` (registered or a variant) built for ``cfg`` and ``env``."""
+    base, sub = resolve_agent(name, cfg)
+    return AGENTS[base](sub, env)
 
 
 def as_env_action(action) -> np.ndarray:
@@ -123,19 +182,35 @@ class PolicyAgent:
         return module_parameters(self.policy) if isinstance(self.policy, nn.Module) else {}
 
 
+def true_mask_model(cfg) -> tuple[object, nn.Module | None]:
+    """(model config, S1 network) of the true-mask agent: ``eval.checkpoint``'s dual system
+    with ``eval.model_overrides`` when a checkpoint is given, else ``cfg.model``."""
+    if cfg.eval.checkpoint:
+        policy = checkpoint_policy(cfg, dual_system=True)
+        return policy.config, policy.s1
+    if cfg.eval.model_overrides:
+        raise AgentError(
+            "agent=true_mask applies model_overrides to a checkpoint's dual system; "
+            "give checkpoint=<run>/checkpoints/best"
+        )
+    return cfg.model, None
+
+
 class TrueMaskAgent:
     """The dual system with the TRUE goal mask as S2's perception (the planner's ceiling).
 
     Privileged: its goal likelihood is ``semantic == goal instance`` (needs the env's
-    ``semantic`` observation); the navigator, its GR field, the S1 follower and the schedule
-    come from ``cfg.model`` exactly as for the learned agent.
+    ``semantic`` observation). The navigator, its GR field, the S1 follower (learned or pure
+    pursuit) and the schedule are ``eval.checkpoint``'s (with ``eval.model_overrides``) when
+    one is given, else ``cfg.model``'s, exactly as for the learned agent.
     """
 
     def __init__(self, cfg, env) -> None:
         from vla_gr.policy.dual_system import GroundedDualSystem
 
         self.env = env
-        self.system = GroundedDualSystem.from_model_config(self._true_mask, cfg.model)
+        model, s1 = true_mask_model(cfg)
+        self.system = GroundedDualSystem.from_model_config(self._true_mask, model, s1)
 
     def _true_mask(self, obs) -> np.ndarray:
         if "semantic" not in obs:
@@ -215,8 +290,8 @@ def _get(tree, dotted: str):
     return tree
 
 
-def check_checkpoint(cfg) -> None:
-    """AgentError naming the problem when ``eval.checkpoint`` cannot drive this eval's env.
+def check_checkpoint(cfg, path: str | None) -> None:
+    """AgentError naming the problem when checkpoint ``path`` cannot drive this eval's env.
 
     Checks the path exists, the checkpoint verifies, its model config is one this version
     reads, and its observation settings (image size, depth range, control rate) match.
@@ -227,7 +302,6 @@ def check_checkpoint(cfg) -> None:
     from vla_gr.checkpoint import CheckpointError, read_checkpoint
     from vla_gr.configs.model_schema import ModelConfig
 
-    path = cfg.eval.checkpoint
     if not path:
         raise AgentError("agent=checkpoint needs checkpoint=<run>/checkpoints/best")
     if not Path(path).exists():
@@ -266,19 +340,35 @@ def check_checkpoint(cfg) -> None:
         )
 
 
-@register_agent("checkpoint")
-def _checkpoint_agent(cfg, env) -> PolicyAgent:
+def checkpoint_policy(cfg, dual_system: bool = False):
+    """``VLAGRPolicy`` of ``eval.checkpoint`` with ``eval.model_overrides`` on ``eval.device``,
+    checked first (:func:`check_checkpoint`); AgentError when it cannot be built (or is not
+    a dual system when ``dual_system``)."""
+    from omegaconf.errors import OmegaConfBaseException
+
     from vla_gr.checkpoint import CheckpointError
     from vla_gr.policy import VLAGRPolicy
 
-    check_checkpoint(cfg)
+    path, overrides = cfg.eval.checkpoint, list(cfg.eval.model_overrides)
+    check_checkpoint(cfg, path)
     try:
-        policy = VLAGRPolicy.from_pretrained(
-            cfg.eval.checkpoint, device=cfg.eval.device, overrides=cfg.eval.model_overrides
-        )
-    except CheckpointError as err:
+        policy = VLAGRPolicy.from_pretrained(path, device=cfg.eval.device, overrides=overrides)
+    except (CheckpointError, UserError) as err:
         raise AgentError(str(err)) from None
-    return PolicyAgent(policy.eval(), cfg.eval.device)
+    except (ValueError, OmegaConfBaseException) as err:
+        first = str(err).strip().splitlines()[0]
+        raise AgentError(f"model_overrides={overrides} do not apply to {path}: {first}") from None
+    if dual_system and not policy.has_goal_head:
+        raise AgentError(
+            f"checkpoint {path} has model.agent={policy.config.agent}; agent=true_mask needs "
+            "a dual-system checkpoint"
+        )
+    return policy.eval()
+
+
+@register_agent("checkpoint")
+def _checkpoint_agent(cfg, env) -> PolicyAgent:
+    return PolicyAgent(checkpoint_policy(cfg), cfg.eval.device)
 
 
 @register_agent("expert")

@@ -41,6 +41,28 @@ def table_row(metrics: dict) -> dict:
     return row
 
 
+def agent_row(metrics: dict) -> dict:
+    """What an agent of a comparison is: the registered agent, checkpoint and overrides."""
+    return {
+        "agent": metrics.get("base_agent", metrics["agent"]),
+        "checkpoint": metrics["checkpoint"],
+        "model_overrides": list(metrics["model_overrides"]),
+    }
+
+
+def agents_table(setups: dict[str, dict]) -> str:
+    """Markdown table of :func:`agent_row` entries ("-" where there is none)."""
+    cells = {
+        name: {
+            "agent": s["agent"],
+            "checkpoint": s["checkpoint"] or "-",
+            "model_overrides": " ".join(s["model_overrides"]) or "-",
+        }
+        for name, s in setups.items()
+    }
+    return format_table(cells)
+
+
 def select_episodes(rows: Sequence[dict], successes: int, per_cause: int) -> list[dict]:
     """The first ``successes`` successful rows and the first ``per_cause`` rows of each cause."""
     chosen = [r for r in rows if r["cause"] is None][:successes]
