@@ -165,3 +165,13 @@ def test_compare_writes_a_row_per_variant_with_its_checkpoint_and_overrides(dual
     assert actions["learned"] != actions["pursuit"]  # the workers built each variant
     md = (tmp_path / "compare.md").read_text()
     assert "## Agents" in md and "| pursuit " in md and "s1.kind=pure_pursuit" in md
+
+
+def test_the_ablations_recipe_names_an_agent_for_every_row(tmp_path):
+    missing = tmp_path / "none"
+    cfg = load_config("compare_ablations", [f"eval.variants.s1_ddim.checkpoint={missing}"])[1]
+    bases = {name: resolve_agent(name, cfg)[0] for name in cfg.eval.agents}
+    assert bases["true_mask"] == "true_mask" and bases["random"] == "random"
+    assert {bases[n] for n in cfg.eval.agents if n not in ("true_mask", "random")} == {"checkpoint"}
+    with pytest.raises(AgentError, match=r"agent s1_ddim: .* make it with: python -m vla_gr\."):
+        check_agent("s1_ddim", cfg)
