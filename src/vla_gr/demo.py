@@ -8,7 +8,9 @@ processes. ``demo.output_dir`` (default ``outputs/demo``) gets the evaluation's 
 and RGB | depth | map GIFs. The table is printed to stdout.
 
 ``vla-gr demo demo.train=true`` is the whole pipeline from an empty folder: collect the
-expert data if missing, train the recipe's agent, then evaluate its ``best`` checkpoint.
+expert data if missing, train the recipe's agent; for a dual system, run the S1 stage
+(``training.s1``: rollouts, teacher relabelling, S1 training; :mod:`vla_gr.training.s1_stage`);
+then evaluate the result.
 """
 
 from __future__ import annotations
@@ -50,6 +52,11 @@ def run_demo(cfg, resolved=None) -> dict:
 
         summary = train(cfg, resolved)
         checkpoint = str(Path(summary["run_dir"]) / "checkpoints" / "best")
+        if cfg.model.agent == "dual_system" and cfg.training.s1.enabled:
+            from vla_gr.training.s1_stage import run_s1_stage
+
+            stage_dir = Path(summary["run_dir"]) / "s1_stage"
+            checkpoint = str(run_s1_stage(cfg, checkpoint, stage_dir))
     out_dir = Path(d.output_dir)
     _fresh_output_dir(out_dir)
     eval_cfg = dataclasses.replace(

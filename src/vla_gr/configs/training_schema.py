@@ -19,6 +19,27 @@ CLOSED_LOOP_METRICS = ("success", "spl")
 
 
 @dataclass
+class S1StageConfig:
+    """The S1 stage of a dual-system agent (``training.s1``): after the goal head is trained,
+    roll the agent out on ``train`` episodes, relabel its states with the local teacher and
+    train the learned S1 (:mod:`vla_gr.training.s1_stage`)."""
+
+    enabled: bool = True  # run the stage in `vla-gr demo demo.train=true`
+    first_episode: int = 1000  # the train episodes the agent is rolled out on
+    episodes: int = 160
+    workers: int = 2
+    steps: int = 3000
+    batch_size: int = 256
+    lr: float = 1e-3
+    settings: list[str] = field(default_factory=list)  # s1.* model settings, e.g. the head
+
+    def __post_init__(self) -> None:
+        check_positive("training.s1.first_episode", self.first_episode, allow_zero=True)
+        for key in ("episodes", "workers", "steps", "batch_size", "lr"):
+            check_positive(f"training.s1.{key}", getattr(self, key))
+
+
+@dataclass
 class TrainingConfig:
     """Optimisation, data, precision, distribution and checkpointing of a training run."""
 
@@ -63,6 +84,7 @@ class TrainingConfig:
     output_dir: str = "outputs/train"
     run_name: str | None = None  # default: a timestamp
     log_every: int = 10
+    s1: S1StageConfig = field(default_factory=S1StageConfig)  # dual system: the S1 stage
 
     def __post_init__(self) -> None:
         check_choice("training.if_missing", self.if_missing, IF_MISSING)

@@ -1,0 +1,140 @@
+"""Latency of the agent's parts in closed loop, batch 1, one thread: S1 and S2 of the dual system.
+
+    python benchmarks/bench_agent_latency.py --checkpoint checkpoints/vla_gr_cpu \
+        [--episodes 5] [--split val] [--variant pure_pursuit_s1=s1.kind=pure_pursuit ...]
+
+Runs the checkpoint (and each ``--variant name=override[,override...]`` of it) on the same
+``--episodes`` episodes of ``--split`` with one torch thread, and reports p50 / p95 / p99 in
+ms of: ``decision`` (one ``select_action``, everything the agent does per control step),
+``s1`` (S1's share of a step: a chunk action from the queue or a new S1 decision),
+``s1_network`` (the learned S1's forward + sampling, on the steps it runs) and ``s2`` (one
+planner tick: goal head + GR-field navigator). Writes ``<out>.json`` and ``<out>.md``. Run it
+on a quiet machine: a benchmark taken beside another job is noise.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from vla_gr.data.collect import make_env
+from vla_gr.evaluation.agents import PolicyAgent
+from vla_gr.evaluation.runner import run_episode
+from vla_gr.policy import VLAGRPolicy
+
+logger = logging.getLogger("bench_agent_latency")
+
+ROOT = Path(__file__).resolve().parent
+DEFAULT_OUT = ROOT / "results" / "bench_agent_latency"
+PARTS = ("decision", "s1", "s1_network", "s2")
+
+
+def timed_s1(policy: VLAGRPolicy, sink: list[float]) -> None:
+    """Record the wall time (ms) of every learned-S1 network call of ``policy`` in ``sink``."""
+    act = policy.s1.act
+
+    def wrapper(*args, **kwargs):
+        t0 = time.perf_counter()
+        out = act(*args, **kwargs)
+        sink.append((time.perf_counter() - t0) * 1e3)
+        return out
+
+    policy.s1.act = wrapper
+
+
+def measure(checkpoint: str, overrides: list[str], env_kwargs: dict, episodes: int) -> dict:
+    """Per-part latency quantiles (ms) and the success of each episode, for one variant."""
+    policy = VLAGRPolicy.from_pretrained(checkpoint, overrides=overrides)
+    network: list[float] = []
+    timed_s1(policy, network)
+    env = make_env(env_kwargs)
+    samples: dict[str, list[float]] = {p: [] for p in PARTS}
+    successes = []
+    try:
+        for k in range(episodes):
+            row = run_episode(env, PolicyAgent(policy), k)
+            for part, values in row["latency_ms"].items():
+                samples.setdefault(part, []).extend(values)
+            successes.append(bool(row["metrics"]["success"]))
+    finally:
+        env.close()
+    samples["s1_network"] = network
+    result = {"success": float(np.mean(successes)), "episodes": episodes}
+    for part, values in samples.items():
+        if values:
+            q = np.percentile(values, [50, 95, 99])
+            result[part] = {"n": len(values), "p50": q[0], "p95": q[1], "p99": q[2]}
+    result["s1_parameters"] = sum(p.numel() for p in policy.s1.parameters())
+    result["s1_kind"] = policy.config.s1.kind
+    return result
+
+
+def table(results: dict) -> str:
+    lines = [
+        "| variant | S1 | S1 params | part | calls | p50 ms | p95 ms | p99 ms |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for name, r in results.items():
+        for part in PARTS:
+            if part in r:
+                q = r[part]
+                lines.append(
+                    f"| {name} | {r['s1_kind']} | {r['s1_parameters']:,} | {part} | {q['n']} | "
+                    f"{q['p50']:.2f} | {q['p95']:.2f} | {q['p99']:.2f} |"
+                )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--checkpoint", default="checkpoints/vla_gr_cpu")
+    parser.add_argument("--variant", action="append", default=[], help="name=key=value[,...]")
+    parser.add_argument("--episodes", type=int, default=5)
+    parser.add_argument("--split", default="val")
+    parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
+    torch.set_num_threads(args.threads)
+    variants = {"vla_gr": []}
+    for item in args.variant:
+        name, _, overrides = item.partition("=")
+        variants[name] = [o for o in overrides.split(",") if o]
+    env_kwargs = {"split": args.split, "semantic": False}
+    results = {
+        name: measure(args.checkpoint, overrides, env_kwargs, args.episodes)
+        for name, overrides in variants.items()
+    }
+    meta = {
+        "checkpoint": args.checkpoint,
+        "split": args.split,
+        "threads": args.threads,
+        "cpu": platform.processor() or platform.machine(),
+        "cpu_count": os.cpu_count(),
+        "torch": torch.__version__,
+    }
+    out = {"meta": meta, "results": results}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.with_suffix(".json").write_text(json.dumps(out, indent=2) + "\n")
+    text = (
+        f"# Agent latency, batch 1, {args.threads} thread(s)\n\n"
+        f"`python benchmarks/bench_agent_latency.py --checkpoint {args.checkpoint} "
+        f"--episodes {args.episodes} --split {args.split}`"
+        + "".join(f" `--variant {v}`" for v in args.variant)
+        + f"\n\n{table(results)}\n"
+    )
+    args.out.with_suffix(".md").write_text(text)
+    logger.info("\n%s", table(results))
+    return out
+
+
+if __name__ == "__main__":
+    main()
