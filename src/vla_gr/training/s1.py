@@ -142,8 +142,14 @@ def train_s1(
     s1_config = policy.config.s1
     arrays = load_s1_data(data, s1_config)
     episodes = np.unique(arrays["episode"])
+    if len(episodes) < 2:
+        raise UserError(
+            f"S1 data {[str(d) for d in data]} holds {len(episodes)} episode; whole episodes "
+            "are held out for validation, so training needs at least 2 episodes"
+        )
     rng = np.random.default_rng(seed)
-    held = set(rng.permutation(episodes)[: max(1, int(round(val_fraction * len(episodes))))])
+    n_val = min(len(episodes) - 1, max(1, int(round(val_fraction * len(episodes)))))
+    held = set(rng.permutation(episodes)[:n_val])
     is_val = np.isin(arrays["episode"], list(held))  # (N,)
     train = S1Batches(arrays, s1_config.head.horizon, np.flatnonzero(~is_val))
     val = S1Batches(arrays, s1_config.head.horizon, np.flatnonzero(is_val))
@@ -166,7 +172,11 @@ def train_s1(
         optimizer.step()
         scheduler.step()
         if step % eval_every == 0 or step == steps:
-            row = {"step": step, "loss": float(out_step["loss"]), **_validate(policy, val, 512)}
+            row = {
+                "step": step,
+                "loss": float(out_step["loss"].detach()),
+                **_validate(policy, val, 512),
+            }
             row["seconds"] = round(time.perf_counter() - t0, 1)
             history.append(row)
             log.info("S1 %s", json.dumps(row))
