@@ -106,11 +106,13 @@ def _build_policy(init: str, settings: Sequence[str], init_s1: bool):
 
 
 def _validate(policy, batches: S1Batches, batch_size: int) -> dict[str, float]:
+    """Mean losses on ``batches``; the noise comes from fixed seeds in a forked RNG, so
+    validations are comparable and the training randomness is untouched."""
     policy.s1.eval()
     sums: dict[str, float] = {}
     n = 0
     gen = torch.Generator().manual_seed(0)
-    with torch.no_grad():
+    with torch.no_grad(), torch.random.fork_rng(devices=[]):
         for batch in batches.ordered(batch_size):
             torch.manual_seed(int(torch.randint(0, 2**31 - 1, (1,), generator=gen)))
             out = policy.s1(batch)
