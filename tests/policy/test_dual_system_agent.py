@@ -13,7 +13,10 @@ from safetensors.torch import load_file
 
 from tests.helpers import train_overrides
 from vla_gr.configs import ConfigError, load_config
+from vla_gr.core.dual_system import LearnedFollower
+from vla_gr.core.dual_system.s1_inputs import PlanMemory
 from vla_gr.core.gr_field import NavPlan
+from vla_gr.core.gr_field.navigator import MODES
 from vla_gr.core.grounding import goal_head_loss
 from vla_gr.data.dataset import EpisodeWindowDataset
 from vla_gr.policy import VLAGRPolicy, make_fake_batch
@@ -107,6 +110,66 @@ def test_s1_acts_on_the_latest_plan_between_ticks():
     assert first == [[0.0, 1.0, -1.0]] * 2  # the first plan's turn, held until the next tick
     assert model.select_action(_obs())[0].tolist() == [0.0, 0.0, 1.0]  # the new plan: STOP
     assert system.max_goal_confidence == 1.0
+
+
+LEARNED_S1 = [
+    "model.s1.kind=learned",
+    "model.s1.image_size=16",
+    "model.s1.channels=[8,16]",
+    "model.s1.dim=32",
+    "model.s1.head.hidden_dim=16",
+    "model.s1.head.horizon=4",
+    "model.s1.head.num_inference_steps=2",
+    "model.s1.n_action_steps=1",  # S1 decides every step: it shows what it reads each step
+]
+
+
+def test_learned_s1_reads_the_latest_plan_and_s2_runs_every_plan_every_steps():
+    model = _model(
+        "model.dual_system.control_frequency_hz=10",
+        "model.dual_system.planning_frequency_hz=3.3",
+        *LEARNED_S1,
+    )
+    system = model.dual_system
+    follower = system.follower
+    assert isinstance(follower, LearnedFollower) and follower.policy is model.s1
+    assert system.plan_every == 3
+    likelihood_steps = []
+    perceive = system.goal_likelihood
+    system.goal_likelihood = lambda obs: likelihood_steps.append(system.steps) or perceive(obs)
+    plans = iter(
+        NavPlan(np.array([[1.0 + k, 0.5 * k]]), "explore", 0.1 * k, False) for k in range(4)
+    )
+    system.navigator.plan = lambda obs, likelihood: next(plans)
+    read = []  # the plan vector S1 read at each call
+    act = follower.policy.act
+
+    def reading(rgb, depth, plan, generator=None):
+        read.append(plan[0].numpy().copy())
+        return act(rgb, depth, plan, generator)
+
+    follower.policy.act = reading
+    model.reset()
+    memory = PlanMemory(model.config.s1.path_points)  # what S1 should read, rebuilt here
+    made = []
+    for t in range(10):
+        pose = np.array([0.2 * t, 0.05 * t, 0.1 * t])
+        previous = system.plan
+        action = model.select_action(_obs(pose))
+        assert action.shape == (1, 3) and action.abs().max() <= 1.0
+        if t % 3 == 0:
+            assert system.plan is not previous
+            made.append(system.plan)
+            memory.set_plan(system.plan, pose, t)
+        assert system.plan is made[-1] and follower.memory.plan is system.plan
+        assert len(read) == t + 1
+        np.testing.assert_allclose(read[-1], memory.vector(pose, t), atol=1e-6)
+    assert likelihood_steps == [0, 3, 6, 9]
+    ages = [round(float(v[-1]) * 10) for v in read]
+    assert ages == [0, 1, 2, 0, 1, 2, 0, 1, 2, 0]
+    # confidence, goal distance, goal known, speed cap, modes, age
+    confidence = [float(v[-5 - len(MODES)]) for v in read]
+    assert confidence == pytest.approx([0.1 * (t // 3) for t in range(10)])
 
 
 def test_the_dual_system_runs_at_batch_one():

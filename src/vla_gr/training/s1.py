@@ -6,6 +6,8 @@ of ``model.s1.head.horizon`` steps (the labels of the next steps along the same 
 last one repeated at its end) plus BCE on the teacher's STOP. Whole episodes are held out
 for validation; the S1 weights with the lowest validation loss are written, with
 ``model.s1.kind=learned``, as a checkpoint that ``vla-gr eval`` loads like any other.
+With ``--set s1.use_s2=false`` (the "without S2" ablation) S1 trains on the empty plan
+vectors it reads at inference.
 
     python -m vla_gr.training.s1 checkpoints/vla_gr_cpu outputs/s1/flow \
         --data data/s1/round0 --steps 3000
@@ -29,13 +31,14 @@ import numpy as np
 import torch
 
 from vla_gr.checkpoint import load_model_state, read_checkpoint, save_checkpoint
+from vla_gr.core.dual_system.s1_inputs import PlanMemory
 from vla_gr.errors import UserError
 from vla_gr.training.optim import build_optimizer, build_scheduler
 from vla_gr.training.s1_data import load_s1_data
 
 log = logging.getLogger(__name__)
 
-__all__ = ["S1Batches", "train_s1"]
+__all__ = ["S1Batches", "plans_without_s2", "train_s1"]
 
 
 class S1Batches:
@@ -77,6 +80,17 @@ class S1Batches:
             yield self.batch(self.indices[i : i + batch_size])
 
 
+def plans_without_s2(episode: np.ndarray, s1) -> np.ndarray:
+    """(N, P) plan vectors S1 reads when it is never handed a plan (``s1.use_s2=false``):
+    :class:`PlanMemory`'s empty vector at each frame's step in its episode (``episode`` (N,)
+    ordered as in :class:`S1Batches`)."""
+    starts = np.r_[True, episode[1:] != episode[:-1]]  # (N,)
+    step = np.arange(len(episode)) - np.flatnonzero(starts)[np.cumsum(starts) - 1]  # (N,)
+    memory = PlanMemory(s1.path_points)
+    zero = np.zeros(3)
+    return np.stack([memory.vector(zero, t) for t in range(int(step.max()) + 1)])[step]
+
+
 def _build_policy(init: str, settings: Sequence[str], init_s1: bool):
     """The agent of ``init`` with ``model.s1`` changed by ``settings``; its S2 weights loaded."""
     from omegaconf import OmegaConf
@@ -106,11 +120,13 @@ def _build_policy(init: str, settings: Sequence[str], init_s1: bool):
 
 
 def _validate(policy, batches: S1Batches, batch_size: int) -> dict[str, float]:
+    """Mean losses on ``batches``; the noise comes from fixed seeds in a forked RNG, so
+    validations are comparable and the training randomness is untouched."""
     policy.s1.eval()
     sums: dict[str, float] = {}
     n = 0
     gen = torch.Generator().manual_seed(0)
-    with torch.no_grad():
+    with torch.no_grad(), torch.random.fork_rng(devices=[]):
         for batch in batches.ordered(batch_size):
             torch.manual_seed(int(torch.randint(0, 2**31 - 1, (1,), generator=gen)))
             out = policy.s1(batch)
@@ -141,9 +157,17 @@ def train_s1(
     policy, loaded, config = _build_policy(str(init), settings, init_s1)
     s1_config = policy.config.s1
     arrays = load_s1_data(data, s1_config)
+    if not s1_config.use_s2:  # the "without S2" ablation: S1 reads no plan, as at inference
+        arrays["plan"] = plans_without_s2(arrays["episode"], s1_config)
     episodes = np.unique(arrays["episode"])
+    if len(episodes) < 2:
+        raise UserError(
+            f"S1 data {[str(d) for d in data]} holds {len(episodes)} episode; whole episodes "
+            "are held out for validation, so training needs at least 2 episodes"
+        )
     rng = np.random.default_rng(seed)
-    held = set(rng.permutation(episodes)[: max(1, int(round(val_fraction * len(episodes))))])
+    n_val = min(len(episodes) - 1, max(1, int(round(val_fraction * len(episodes)))))
+    held = set(rng.permutation(episodes)[:n_val])
     is_val = np.isin(arrays["episode"], list(held))  # (N,)
     train = S1Batches(arrays, s1_config.head.horizon, np.flatnonzero(~is_val))
     val = S1Batches(arrays, s1_config.head.horizon, np.flatnonzero(is_val))
@@ -166,7 +190,11 @@ def train_s1(
         optimizer.step()
         scheduler.step()
         if step % eval_every == 0 or step == steps:
-            row = {"step": step, "loss": float(out_step["loss"]), **_validate(policy, val, 512)}
+            row = {
+                "step": step,
+                "loss": float(out_step["loss"].detach()),
+                **_validate(policy, val, 512),
+            }
             row["seconds"] = round(time.perf_counter() - t0, 1)
             history.append(row)
             log.info("S1 %s", json.dumps(row))

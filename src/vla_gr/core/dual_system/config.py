@@ -7,7 +7,7 @@ keyword constructor (the seed's call) fills one. Next in the data flow:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 from vla_gr.core.diffusion_policy.config import HeadConfig
 from vla_gr.validation import check_choice, check_positive, check_positive_int
@@ -79,7 +79,7 @@ class S1Config:
     kind: str = "pure_pursuit"  # until S1 is trained (python -m vla_gr.training.s1)
     image_size: int = 32  # S1's RGB-D input is average-pooled to this square size
     channels: list[int] = field(default_factory=lambda: [16, 32, 48, 64])  # conv stages
-    dim: int = 96  # token width; the head's context_dim follows it
+    dim: int = 96  # token width; the head's context_dim follows it (S1Policy sets it)
     max_depth: float = 10.0  # depth is divided by this (the env's max depth)
     path_points: list[float] = field(default_factory=lambda: [0.25, 0.5, 1.0, 2.0])  # m
     n_action_steps: int = 2  # chunk actions executed before S1 decides again
@@ -105,7 +105,6 @@ class S1Config:
                 f"model.s1.head.context_dim={self.head.context_dim} contradicts "
                 f"model.s1.dim={self.dim}; set model.s1.dim instead"
             )
-        self.head = replace(self.head, context_dim=self.dim)
         check_positive("model.s1.max_depth", self.max_depth)
         if not self.path_points or any(not p > 0 for p in self.path_points):
             raise ValueError(f"model.s1.path_points={list(self.path_points)} must be > 0 m")

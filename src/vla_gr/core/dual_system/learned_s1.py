@@ -14,6 +14,7 @@ S1 again (at once when a new plan arrives).
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -51,7 +52,7 @@ class S1Policy(nn.Module):
         self.fuse = nn.Sequential(nn.LayerNorm(2 * c.dim), nn.Linear(2 * c.dim, c.dim), nn.GELU())
         self.token_embed = nn.Parameter(torch.randn(3, c.dim) * 0.02)  # fused, visual, plan
         self.stop_head = nn.Sequential(nn.Linear(c.dim, c.dim), nn.GELU(), nn.Linear(c.dim, 1))
-        self.head = DiffusionPolicy(config=c.head)
+        self.head = DiffusionPolicy(config=replace(c.head, context_dim=c.dim))
 
     def encode(
         self, rgb: torch.Tensor, depth: torch.Tensor, plan: torch.Tensor
