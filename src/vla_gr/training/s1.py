@@ -106,6 +106,9 @@ def _build_policy(init: str, settings: Sequence[str], init_s1: bool):
     config = OmegaConf.create(loaded.config_yaml)
     if config.model.get("agent") != "dual_system":
         raise UserError(f"{init} is not a dual-system agent (model.agent={config.model.agent})")
+    if "s1" in config.model and "head" in config.model.s1:
+        # the head's context width follows s1.dim: a saved width must not pin a new dim
+        config.model.s1.head.context_dim = None
     merged = OmegaConf.merge(
         OmegaConf.structured(ModelConfig),
         config.model,
