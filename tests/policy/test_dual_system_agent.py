@@ -104,7 +104,7 @@ def test_s1_acts_on_the_latest_plan_between_ticks():
             NavPlan(np.zeros((0, 2)), "stop", 1.0, True),
         ]
     )
-    system.navigator.plan = lambda obs, likelihood: next(plans)
+    system.navigator.plan = lambda obs, likelihood, visible: next(plans)
     model.reset()
     first = [model.select_action(_obs())[0].tolist() for _ in range(2)]
     assert first == [[0.0, 1.0, -1.0]] * 2  # the first plan's turn, held until the next tick
@@ -140,7 +140,7 @@ def test_learned_s1_reads_the_latest_plan_and_s2_runs_every_plan_every_steps():
     plans = iter(
         NavPlan(np.array([[1.0 + k, 0.5 * k]]), "explore", 0.1 * k, False) for k in range(4)
     )
-    system.navigator.plan = lambda obs, likelihood: next(plans)
+    system.navigator.plan = lambda obs, likelihood, visible: next(plans)
     read = []  # the plan vector S1 read at each call
     act = follower.policy.act
 

@@ -283,8 +283,9 @@ class VLAGRPolicy(nn.Module):
         self.dual_system = GroundedDualSystem.from_model_config(self.goal_likelihood, c, self.s1)
 
     @torch.no_grad()
-    def goal_likelihood(self, obs: Mapping) -> np.ndarray:
-        """S2's perception: (H, W) probability that each pixel shows the instructed object.
+    def goal_likelihood(self, obs: Mapping) -> tuple[np.ndarray, float]:
+        """S2's perception: (H, W) probability that each pixel shows the instructed object,
+        and the probability that it is in view at all.
 
         ``obs`` is one environment observation (``rgb`` (H, W, 3), ``depth`` (H, W, 1),
         ``instruction`` str); a leading batch of one is accepted.
@@ -298,7 +299,7 @@ class VLAGRPolicy(nn.Module):
             frame["rgb"], frame["depth"], frame["instruction"]
         )  # (1, H, W), (1,)
         self.last_goal_visible = float(visible[0])
-        return pixels[0].float().cpu().numpy()  # (H, W)
+        return pixels[0].float().cpu().numpy(), self.last_goal_visible  # (H, W), p
 
     def _dual_system_step(self, obs: Mapping) -> torch.Tensor:
         """One control step of the dual system (S2 every ``plan_every`` steps, S1 every step;

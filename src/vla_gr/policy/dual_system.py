@@ -34,15 +34,17 @@ from vla_gr.core.gr_field import GRFieldConfig, Navigator, NavigatorConfig, NavP
 
 __all__ = ["GoalLikelihood", "GroundedDualSystem"]
 
-#: ``(obs) -> (H, W)`` per-pixel probability that the pixel shows the instructed object.
-GoalLikelihood = Callable[[Mapping], np.ndarray]
+#: ``(obs) -> (H, W)`` per-pixel probability that the pixel shows the instructed object, or
+#: ``(obs) -> ((H, W), p)`` with ``p`` the probability that it is in view at all.
+GoalLikelihood = Callable[[Mapping], np.ndarray | tuple[np.ndarray, float]]
 
 
 class GroundedDualSystem:
     """S2 (goal likelihood + GR-field navigator) every ``plan_every`` steps, S1 every step.
 
     Args:
-        goal_likelihood: the S2 perception, ``obs -> (H, W)`` in [0, 1].
+        goal_likelihood: the S2 perception, ``obs -> (H, W)`` in [0, 1] (or that and the
+            probability that the goal is in view, see :data:`GoalLikelihood`).
         navigator, field, pursuit: configs of the navigator, its GR field and the follower.
         plan_every: control steps per S2 tick.
         s1: the learned S1 network; None = the pure-pursuit follower (``pursuit``).
@@ -108,12 +110,14 @@ class GroundedDualSystem:
         t0 = time.perf_counter()
         depth = np.asarray(obs["depth"], dtype=np.float32)  # (H, W, 1)
         pose = np.asarray(obs["pose"], dtype=np.float64).reshape(3)  # (3,)
-        likelihood = np.asarray(self.goal_likelihood(obs), dtype=np.float32)  # (H, W)
+        perceived = self.goal_likelihood(obs)
+        likelihood, visible = perceived if isinstance(perceived, tuple) else (perceived, 1.0)
+        likelihood = np.asarray(likelihood, dtype=np.float32)  # (H, W)
         if likelihood.shape != depth.shape[:2]:
             raise ValueError(
                 f"goal likelihood has shape {likelihood.shape}, expected {depth.shape[:2]}"
             )
-        self.plan = self.navigator.plan({"depth": depth, "pose": pose}, likelihood)
+        self.plan = self.navigator.plan({"depth": depth, "pose": pose}, likelihood, visible)
         self.follower.set_plan(self.plan, pose)
         self.last_likelihood = likelihood
         self.max_goal_confidence = max(self.max_goal_confidence, self.plan.goal_confidence)

@@ -41,11 +41,11 @@ def make_nav(**overrides) -> Navigator:
     return Navigator(NavigatorConfig(**overrides), fcfg)
 
 
-def tick(nav, pose, like=None):
+def tick(nav, pose, like=None, visible=1.0):
     depth = room_depth(pose)
     if like is None:
         like = np.zeros(depth.shape[:2], np.float32)
-    return nav.plan({"depth": depth, "pose": np.array(pose, np.float32)}, like)
+    return nav.plan({"depth": depth, "pose": np.array(pose, np.float32)}, like, visible)
 
 
 def test_look_around_turns_in_place_until_a_full_turn():
@@ -81,6 +81,20 @@ def test_single_tick_false_positive_does_not_commit_but_repeated_evidence_does()
     assert nav.committed and plan.mode == "approach"
     assert plan.goal_confidence == 1.0 and len(plan.waypoints) > 0
     assert plan.waypoints[0, 0] > 0  # heads towards the wall ahead
+
+
+@pytest.mark.parametrize("threshold", [0.0, 0.5])
+def test_frames_the_goal_head_calls_goal_free_cast_no_votes(threshold):
+    pose = (0.0, 0.0, 0.0)
+    like = wall_goal(room_depth(pose))
+    nav = make_nav(look_around_angle=0.0, visible_threshold=threshold)
+    for _ in range(3):
+        tick(nav, pose, like, visible=0.3)  # goal pixels, but "not in view" at p = 0.3
+    assert nav.committed == (threshold == 0.0)  # gated at 0.5; pixels alone decide at 0
+    assert nav.goal_votes.max() == (3 if threshold == 0.0 else 0)
+    tick(nav, pose, like, visible=0.5)  # at the threshold: votes again
+    tick(nav, pose, like, visible=0.9)
+    assert nav.committed
 
 
 def test_stop_only_when_the_confirmed_goal_is_within_stop_distance():

@@ -63,6 +63,9 @@ class NavigatorConfig:
     look_around_angle: float = 2.0 * math.pi  # turned in place at the start
     turn_rate: float = 1.0  # fraction of the max angular speed for open-loop turns
     pixel_threshold: float = 0.5  # goal likelihood for a pixel to vote for its cell
+    # the goal head's per-frame "goal visible" probability below which a tick casts no goal
+    # votes (its pixels still feed the field's mean likelihood); 0 = pixels alone decide
+    visible_threshold: float = 0.0
     confirm_ticks: int = 2  # ticks with goal votes before a cell is a goal
     min_goal_pixels: int = 3  # goal pixels for "the goal is in view now"
     stop_distance: float = 0.8  # m from the robot centre to a confirmed goal cell
@@ -115,6 +118,10 @@ class NavigatorConfig:
         for key in ("turn_rate", "recover_back_speed", "pixel_threshold", "tight_speed"):
             if not 0.0 < getattr(self, key) <= 1.0:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be in (0, 1]")
+        if not 0.0 <= self.visible_threshold <= 1.0:
+            raise ValueError(
+                f"model.navigator.visible_threshold={self.visible_threshold} must be in [0, 1]"
+            )
 
 
 @dataclass
@@ -182,7 +189,7 @@ class Navigator:
 
     # ------------------------------------------------------------------ tick
 
-    def plan(self, obs: dict, goal_likelihood) -> NavPlan:
+    def plan(self, obs: dict, goal_likelihood, goal_visible: float = 1.0) -> NavPlan:
         """One planner tick.
 
         Args:
@@ -190,6 +197,8 @@ class Navigator:
                 is accepted too).
             goal_likelihood: (H, W) per-pixel probability in [0, 1] that the pixel shows the
                 instructed object.
+            goal_visible: probability that the instructed object is in view at all (the goal
+                head's per-frame output); below ``visible_threshold`` the tick casts no votes.
         """
         t0 = time.perf_counter()
         cfg = self.config
@@ -198,7 +207,8 @@ class Navigator:
         )  # (1, H, W)
         pose = torch.as_tensor(np.asarray(obs["pose"], np.float32)).reshape(1, 3)  # (1, 3)
         like = torch.as_tensor(np.asarray(goal_likelihood, np.float32)).reshape(depth.shape)
-        visible = self._vote(depth, pose, like)  # goal pixels in view now
+        votes_allowed = float(goal_visible) >= cfg.visible_threshold
+        visible = votes_allowed and self._vote(depth, pose, like)  # goal pixels in view now
         confirmed = self.goal_votes >= cfg.confirm_ticks  # (H, W)
         gate = torch.from_numpy(confirmed)[None]  # (1, H, W)
         if self.tight_left > 0:
