@@ -96,10 +96,12 @@ class GroundedDualSystem:
         self.max_goal_confidence = 0.0
 
     def episode_summary(self) -> dict:
-        """What S2 concluded this episode: the highest goal confidence and the last mode."""
+        """What S2 concluded this episode: the highest goal confidence, the last mode and the
+        evidence behind its STOP request ({} without one)."""
         return {
             "goal_confidence": round(float(self.max_goal_confidence), 4),
             "last_mode": None if self.plan is None else self.plan.mode,
+            "stop_evidence": dict(self.navigator.stop_evidence),
         }
 
     def plan_if_due(self, obs: Mapping) -> float | None:

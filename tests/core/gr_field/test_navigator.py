@@ -117,6 +117,25 @@ def test_stop_only_when_the_confirmed_goal_is_within_stop_distance():
     assert not plan.stop and plan.mode == "verify" and plan.command[0] == 0.0
 
 
+def test_stop_evidence_records_the_stop_tick_only():
+    near = (ROOM[1] - 0.6, 0.0, 0.0)
+    nav = make_nav(look_around_angle=0.0, stop_distance=0.8)
+    like = wall_goal(room_depth(near))
+    tick(nav, near, like, visible=0.7)
+    assert nav.stop_evidence == {}  # no STOP yet
+    plan = tick(nav, near, like, visible=0.9)
+    assert plan.stop
+    ev = dict(nav.stop_evidence)
+    assert ev["goal_visible"] == 0.9 and ev["tick"] == 1 and ev["peak_likelihood"] == 1.0
+    assert ev["goal_pixels"] >= nav.config.min_goal_pixels
+    assert ev["max_votes"] == 2 and ev["total_votes"] == 2 * ev["goal_cells"]
+    assert ev["distance"] == pytest.approx(plan.goal_distance, abs=1e-3)
+    tick(nav, near, like, visible=0.1)  # a later STOP tick does not overwrite it
+    assert nav.stop_evidence == ev
+    nav.reset()
+    assert nav.stop_evidence == {}
+
+
 def test_blocked_fires_after_the_window_marks_an_obstacle_and_backs_up():
     nav = make_nav(look_around_angle=0.0, blocked_steps=10, stuck_steps=1000)
     pose = (0.0, 0.0, 0.0)

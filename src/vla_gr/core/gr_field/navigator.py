@@ -184,6 +184,8 @@ class Navigator:
         self.recoveries = 0
         self.committed = False
         self.ever_seen_goal = False
+        self.tick_goal_pixels = 0  # goal pixels of this tick that landed on the map
+        self.stop_evidence: dict[str, float] = {}  # what S2 saw on the tick it asked to STOP
         self.last_output = None
         self.last_latency = 0.0
 
@@ -229,6 +231,8 @@ class Navigator:
         p = pose[0].numpy().astype(np.float64)  # (3,)
         plan = self._decide(out, p, robot_xy, visible, distance, nearest, maps)
         plan.goal_confidence, plan.goal_distance = confidence, distance
+        if plan.stop and not self.stop_evidence:
+            self.stop_evidence = self._evidence(goal_cells, goal_visible, like, distance)
         plan.max_speed = cfg.tight_speed if self.tight_left > 0 else 1.0
         self.mode = plan.mode
         self.ticks += 1
@@ -308,6 +312,21 @@ class Navigator:
             self.drives.clear()
         return NavPlan(np.zeros((0, 2)), mode, 0.0, False, command=command)
 
+    def _evidence(self, goal_cells: np.ndarray, goal_visible: float, like, distance) -> dict:
+        """The goal evidence behind a STOP: per-frame visible probability, goal pixels and
+        peak likelihood now, and the votes of the confirmed goal cells."""
+        votes = self.goal_votes[goal_cells]  # (M,) of the confirmed cells
+        return {
+            "goal_visible": round(float(goal_visible), 4),
+            "goal_pixels": int(self.tick_goal_pixels),
+            "peak_likelihood": round(float(like.max()), 4),
+            "goal_cells": int(goal_cells.sum()),
+            "max_votes": int(votes.max()) if votes.size else 0,
+            "total_votes": int(votes.sum()),
+            "distance": round(float(distance), 3),
+            "tick": int(self.ticks),
+        }
+
     def _vote(self, depth, pose, like) -> bool:
         """Add one vote to every cell goal pixels land in this tick; True if the goal is in view.
 
@@ -316,6 +335,7 @@ class Navigator:
         """
         cfg, fcfg = self.config, self.field_config
         hits = (like >= cfg.pixel_threshold).reshape(1, -1)  # (1, N)
+        self.tick_goal_pixels = 0
         if not bool(hits.any()):
             return False
         points, valid = project_depth(
@@ -325,7 +345,8 @@ class Navigator:
         keep = hits & valid  # (1, N)
         cells, inside = points_to_cells(points[..., :2], self.field.grid)  # (1, N, 2), (1, N)
         keep = keep & inside
-        visible = int(keep.sum()) >= cfg.min_goal_pixels
+        self.tick_goal_pixels = int(keep.sum())
+        visible = self.tick_goal_pixels >= cfg.min_goal_pixels
         if bool(keep.any()):
             rc = np.unique(cells[keep].numpy(), axis=0)  # (M, 2) distinct cells this tick
             self.goal_votes[rc[:, 0], rc[:, 1]] += 1
