@@ -166,18 +166,27 @@ def test_each_failure_cause_comes_from_an_agent_built_to_cause_it(tmp_path, monk
         monkeypatch.setitem(AGENTS, name, lambda cfg, env, a=agent: a)
     common = (f"episodes={file}", "env.max_episode_steps=30", "eval.goal_seen_pixels=5")
 
+    rows: dict[str, dict] = {}
+
     def causes(agent: str, *extra: str) -> dict[str, str]:
         out = tmp_path / f"{agent}{len(extra)}"
         evaluate(cfg_for(out, f"agent={agent}", *common, *extra))
+        rows.update({f"{agent}/{r['episode_id']}": r for r in rows_of(out)})
         return {r["episode_id"]: r["cause"] for r in rows_of(out)}
 
     stop = causes("stop")
     assert stop["at-distractor"] == "stopped_at_distractor"
     assert stop["facing-goal"] == stop["facing-away"] == "stopped_elsewhere"
+    near = rows["stop/at-distractor"]["stopped_near"]  # the distractor it stopped beside
+    assert near["category"] == rows["stop/at-distractor"]["goal_category"]
+    assert near["distance"] < 0.5 and rows["stop/at-distractor"]["wrong_stop"] == "same_category"
+    assert all(r["wrong_stop"] is not None for k, r in rows.items())
     assert set(causes("spin", "eval.stuck_steps=20").values()) == {"stuck"}
     still = causes("still", "eval.stuck_steps=100")  # never "stuck": window > budget
     assert still["facing-goal"] == "timeout_goal_seen"
     assert still["facing-away"] == "timeout_goal_never_seen"
+    assert rows["still/facing-goal"]["stopped_near"] == {}  # no STOP: nothing to explain
+    assert rows["still/facing-goal"]["wrong_stop"] is None
 
 
 # ------------------------------------------------------------------ checkpoints, bad input

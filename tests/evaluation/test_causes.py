@@ -5,8 +5,21 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vla_gr.evaluation.causes import CAUSES, CauseThresholds, failure_cause, is_stuck
-from vla_gr.evaluation.summary import cause_counts, latency, overall, without_timing
+from vla_gr.evaluation.causes import (
+    CAUSES,
+    WRONG_STOP_KINDS,
+    CauseThresholds,
+    failure_cause,
+    is_stuck,
+    wrong_stop_kind,
+)
+from vla_gr.evaluation.summary import (
+    cause_counts,
+    latency,
+    overall,
+    without_timing,
+    wrong_stop_counts,
+)
 
 TH = CauseThresholds(success_distance=1.0, goal_seen_pixels=10, stuck_steps=5, stuck_radius=0.3)
 
@@ -64,3 +77,15 @@ def test_summary_counts_causes_shares_and_latency_percentiles():
     lat = latency(rows)["decision"]
     assert lat["calls"] == 40 and lat["p50"] == 2.5 and lat["p99"] == 3.0
     assert without_timing({"a": 1, "latency_ms": {}, "timing": {}}) == {"a": 1}
+
+
+def test_a_wrong_stop_is_named_by_what_it_stopped_next_to():
+    goal = {"category": "chair", "color": "red"}
+    assert wrong_stop_kind(goal, {"category": "chair", "color": "blue"}) == "same_category"
+    assert wrong_stop_kind(goal, {"category": "chair", "color": "red"}) == "same_category"
+    assert wrong_stop_kind(goal, {"category": "table", "color": "red"}) == "same_colour"
+    assert wrong_stop_kind(goal, {"category": "table", "color": "blue"}) == "other_object"
+    rows = [{"wrong_stop": "same_colour"}, {"wrong_stop": None}, {}, {"wrong_stop": "same_colour"}]
+    counts = wrong_stop_counts(rows)  # rows of older runs have no "wrong_stop"
+    assert list(counts) == list(WRONG_STOP_KINDS) and counts["same_colour"] == 2
+    assert sum(counts.values()) == 2

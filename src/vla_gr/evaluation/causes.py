@@ -10,6 +10,11 @@ One cause per failed episode, checked in this order:
 - ``timeout_goal_never_seen``: the goal instance never covered ``goal_seen_pixels`` pixels
   of an observation;
 - ``timeout_goal_seen``: the goal was seen but the budget ran out.
+
+A wrong STOP is further told apart by the object nearest to where the robot stopped
+(:func:`wrong_stop_kind`): another instance of the goal's category, an object of another
+category in the goal's colour (the grounding followed the colour, not the category), or any
+other object.
 """
 
 from __future__ import annotations
@@ -26,6 +31,9 @@ CAUSES: tuple[str, ...] = (
     "timeout_goal_never_seen",
     "timeout_goal_seen",
 )
+
+
+WRONG_STOP_KINDS: tuple[str, ...] = ("same_category", "same_colour", "other_object")
 
 
 @dataclass(frozen=True)
@@ -70,3 +78,17 @@ def failure_cause(
         return "stuck"
     seen = len(goal_pixels) > 0 and max(goal_pixels) >= th.goal_seen_pixels
     return "timeout_goal_seen" if seen else "timeout_goal_never_seen"
+
+
+def wrong_stop_kind(goal: dict, nearest: dict) -> str:
+    """What a wrong STOP was next to: ``same_category`` (``nearest`` has the goal's category),
+    ``same_colour`` (another category in the goal's colour) or ``other_object``.
+
+    ``goal`` and ``nearest`` hold ``category`` and ``color`` (of the goal instance and of the
+    object nearest to the final position).
+    """
+    if nearest["category"] == goal["category"]:
+        return "same_category"
+    if nearest["color"] == goal["color"]:
+        return "same_colour"
+    return "other_object"

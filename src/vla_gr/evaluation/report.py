@@ -144,6 +144,11 @@ def write_report(out_dir: Path, metrics: dict, rows: Sequence[dict], pictures: d
         lines += [f"### {key}", "", format_table(metrics["breakdowns"][key]), ""]
     lines += ["## Failure causes", "", "| cause | episodes |", "|---|---|"]
     lines += [f"| {c} | {n} |" for c, n in metrics["failure_causes"].items()]
+    wrong = metrics.get("wrong_stops") or {}
+    if any(wrong.values()):
+        lines += ["", "Wrong STOPs by the object nearest to where the robot stopped:", ""]
+        lines += ["| next to | episodes |", "|---|---|"]
+        lines += [f"| {kind} | {n} |" for kind, n in wrong.items()]
     low = metrics.get("low_goal_confidence") or []
     if low:
         lines += [

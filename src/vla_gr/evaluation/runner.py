@@ -25,7 +25,7 @@ import torch
 from torch import nn
 
 from vla_gr.envs.metrics import aggregate
-from vla_gr.evaluation.causes import CauseThresholds, failure_cause
+from vla_gr.evaluation.causes import CauseThresholds, failure_cause, wrong_stop_kind
 
 log = logging.getLogger(__name__)
 
@@ -84,6 +84,27 @@ def _distractor_distances(env, xy: tuple[float, float]) -> dict[str, float]:
     return out
 
 
+def _object_summary(house, obj) -> dict:
+    return {
+        "instance_id": int(obj.instance_id),
+        "category": obj.category,
+        "color": obj.color,
+        "room": house.rooms[obj.room_index].room_type,
+    }
+
+
+def _nearest_object(env, xy: tuple[float, float]) -> dict:
+    """The object whose footprint is nearest to ``xy`` (straight line from the footprint's
+    bounding circle, 0 inside it): id, category, colour, room and that distance (m)."""
+    house = env.unwrapped.house
+
+    def gap(obj) -> float:
+        return max(0.0, math.hypot(obj.x - xy[0], obj.y - xy[1]) - math.hypot(*obj.half_extents))
+
+    obj = min(house.objects, key=gap)
+    return {**_object_summary(house, obj), "distance": round(gap(obj), 4)}
+
+
 def _goal_pixels(obs: dict, goal_id: int) -> int:
     semantic = obs.get("semantic")
     return -1 if semantic is None else int(np.count_nonzero(semantic == goal_id))
@@ -96,7 +117,8 @@ def run_episode(
 
     Row keys: ``episode_index``, ``episode_id``, ``spec``, ``metrics`` (the final info),
     ``stopped``, ``cause`` (None on success), ``num_rooms``, ``goal_category``,
-    ``instruction_kind``, ``distractor_distances`` (after a wrong STOP), ``trace`` (``xy`` (T+1, 2),
+    ``instruction_kind``, ``distractor_distances``, ``stopped_near`` (the nearest object) and
+    ``wrong_stop`` (its :func:`wrong_stop_kind`) after a wrong STOP, ``trace`` (``xy`` (T+1, 2),
     ``goal_pixels`` (T+1,) or -1 without semantic, ``distance`` (T+1,)), ``actions``
     (T, 3), ``latency_ms`` ({part: (T,)}), ``parameters``, ``agent`` (the agent's
     ``episode_summary()``, {} without one).
@@ -130,7 +152,9 @@ def run_episode(
     metrics = {k: info[k] for k in FINAL_KEYS}
     metrics = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in metrics.items()}
     stopped = bool(terminated)
-    distractor = _distractor_distances(env, xy[-1]) if stopped and not metrics["success"] else {}
+    wrong_stop = stopped and not metrics["success"]
+    distractor = _distractor_distances(env, xy[-1]) if wrong_stop else {}
+    near = _nearest_object(env, xy[-1]) if wrong_stop else {}
     spec = u.episode_spec
     cause = failure_cause(
         bool(metrics["success"]), stopped, np.array(xy), pixels, list(distractor.values()), th
@@ -146,6 +170,8 @@ def run_episode(
         "goal_category": spec.goal_category,
         "instruction_kind": instruction_kind(spec.instruction),
         "distractor_distances": distractor,
+        "stopped_near": near,
+        "wrong_stop": wrong_stop_kind(_object_summary(u.house, u.goal), near) if near else None,
         "trace": {
             "xy": [[round(x, 4), round(y, 4)] for x, y in xy],
             "goal_pixels": pixels,

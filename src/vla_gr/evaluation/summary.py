@@ -11,7 +11,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from vla_gr.envs.metrics import aggregate
-from vla_gr.evaluation.causes import CAUSES
+from vla_gr.evaluation.causes import CAUSES, WRONG_STOP_KINDS
 
 BREAKDOWNS = ("num_rooms", "goal_category", "instruction_kind")
 #: Keys of metrics.json that depend on wall-clock time (excluded from equality checks).
@@ -48,6 +48,15 @@ def cause_counts(rows: Sequence[dict]) -> dict[str, int]:
     for r in rows:
         if r["cause"] is not None:
             counts[r["cause"]] += 1
+    return counts
+
+
+def wrong_stop_counts(rows: Sequence[dict]) -> dict[str, int]:
+    """Wrong STOPs per kind of object stopped next to (every kind listed, zeros included)."""
+    counts = dict.fromkeys(WRONG_STOP_KINDS, 0)
+    for r in rows:
+        if r.get("wrong_stop") is not None:
+            counts[r["wrong_stop"]] += 1
     return counts
 
 
@@ -101,6 +110,7 @@ def summarize_rows(
         "metrics": overall(rows),
         "breakdowns": {key: breakdown(rows, key) for key in BREAKDOWNS},
         "failure_causes": cause_counts(rows),
+        "wrong_stops": wrong_stop_counts(rows),
         "low_goal_confidence": low_confidence_episodes(rows),
         "parameters": rows[0]["parameters"],
         "latency_ms": latency(rows),
