@@ -6,7 +6,9 @@ from __future__ import annotations
 import dataclasses
 import json
 from pathlib import Path
+from types import SimpleNamespace as Namespace
 
+import numpy as np
 import pytest
 import torch
 from omegaconf import OmegaConf
@@ -20,6 +22,7 @@ from vla_gr.core.dual_system import LearnedFollower, PurePursuit
 from vla_gr.evaluate import compare, expand_aliases
 from vla_gr.evaluation.agents import (
     AgentError,
+    TrueCategoryAgent,
     TrueMaskAgent,
     check_agent,
     make_agent,
@@ -119,6 +122,35 @@ def test_true_mask_on_a_checkpoint_uses_its_dual_system(dual, tmp_path):
         check_agent("true_mask", eval_cfg(f"checkpoint={e2e}"))
 
 
+def test_true_category_keeps_the_goal_heads_pixels_on_the_goal_category_only(dual, tmp_path):
+    chair, other_chair, table = (Namespace(instance_id=i, category=c) for i, c in
+                                 ((3, "chair"), (5, "chair"), (7, "table")))  # fmt: skip
+    world = Namespace(house=Namespace(objects=[chair, other_chair, table]), goal=chair)
+    agent = TrueCategoryAgent(eval_cfg(f"checkpoint={dual}"), Namespace(unwrapped=world))
+    rng = np.random.default_rng(0)
+    semantic = rng.choice([0, 3, 5, 7], size=(32, 32))  # (H, W) instance ids
+    obs = {
+        "rgb": rng.integers(0, 255, (32, 32, 3), dtype=np.uint8),
+        "depth": rng.uniform(0.5, 5.0, (32, 32, 1)).astype(np.float32),
+        "pose": np.zeros(3, np.float32),
+        "instruction": "find the chair",
+        "semantic": semantic,
+    }
+    raw, raw_visible = agent.policy.goal_likelihood(obs)  # (H, W), probability
+    gated, visible = agent._gated(obs)
+    chairs = np.isin(semantic, [3, 5])  # the goal and its same-category distractor
+    assert visible == raw_visible and raw[~chairs].max() > 0
+    assert np.array_equal(gated[chairs], raw[chairs]) and not gated[~chairs].any()
+    assert agent.parameters()["total"] == sum(p.numel() for p in agent.policy.parameters())
+    with pytest.raises(AgentError, match="agent=true_category needs the env's semantic"):
+        agent._gated({k: v for k, v in obs.items() if k != "semantic"})
+    with pytest.raises(AgentError, match="give checkpoint="):
+        TrueCategoryAgent(eval_cfg(), None)
+    e2e = write_checkpoint(tmp_path, "model.agent=end_to_end")
+    with pytest.raises(AgentError, match="model.agent=end_to_end; agent=true_category needs"):
+        check_agent("true_category", eval_cfg(f"checkpoint={e2e}"))
+
+
 def test_a_missing_variant_checkpoint_stops_before_any_episode(tmp_path, capsys):
     out = tmp_path / "out"
     made_by = "python -m vla_gr.training.s1 a b"
@@ -171,7 +203,8 @@ def test_the_ablations_recipe_names_an_agent_for_every_row(tmp_path):
     missing = tmp_path / "none"
     cfg = load_config("compare_ablations", [f"eval.variants.s1_ddim.checkpoint={missing}"])[1]
     bases = {name: resolve_agent(name, cfg)[0] for name in cfg.eval.agents}
-    assert bases["true_mask"] == "true_mask" and bases["random"] == "random"
-    assert {bases[n] for n in cfg.eval.agents if n not in ("true_mask", "random")} == {"checkpoint"}
+    registered = ("true_mask", "true_category", "random")
+    assert all(bases[name] == name for name in registered)
+    assert {bases[n] for n in cfg.eval.agents if n not in registered} == {"checkpoint"}
     with pytest.raises(AgentError, match=r"agent s1_ddim: .* make it with: python -m vla_gr\."):
         check_agent("s1_ddim", cfg)

@@ -95,7 +95,7 @@ class CollectConfig:
 class DemoConfig:
     """``vla-gr demo``: the shipped agent evaluated on a few episodes (see ``vla_gr.demo``)."""
 
-    agent: str = "checkpoint"  # an eval agent name (checkpoint, true_mask, expert, random, ...)
+    agent: str = "checkpoint"  # an eval agent (checkpoint, true_mask, true_category, expert, ...)
     checkpoint: str = "checkpoints/vla_gr_cpu"  # the agent shipped in the repository
     split: str = "val"
     num_episodes: int = 20
@@ -112,7 +112,7 @@ class DemoConfig:
 
 
 #: Registered eval agents a variant may build on (both load a checkpoint's settings).
-VARIANT_AGENTS = ("checkpoint", "true_mask")
+VARIANT_AGENTS = ("checkpoint", "true_mask", "true_category")
 
 
 @dataclass
@@ -122,7 +122,8 @@ class VariantConfig:
 
     checkpoint: str | None = None  # None: eval.checkpoint
     model_overrides: list[str] = field(default_factory=list)  # replace eval.model_overrides
-    agent: str = "checkpoint"  # the registered agent it builds on: checkpoint | true_mask
+    # the registered agent it builds on: checkpoint | true_mask | true_category
+    agent: str = "checkpoint"
     made_by: str | None = None  # the command that writes the checkpoint (shown if missing)
 
     def __post_init__(self) -> None:

@@ -1,7 +1,7 @@
 """Helpers of ``vla-gr eval`` (the app is :mod:`vla_gr.evaluate`).
 
-- :mod:`.agents`  name -> factory registry (``checkpoint``, ``true_mask``, ``expert``,
-  ``random``) and the variants of ``eval.variants`` built on it;
+- :mod:`.agents`  name -> factory registry (``checkpoint``, ``true_mask``, ``true_category``,
+  ``expert``, ``random``) and the variants of ``eval.variants`` built on it;
 - :mod:`.runner`  the episode loop with its per-step record, spawn workers, JSONL rows;
 - :mod:`.causes`  failure causes from an episode's record;
 - :mod:`.summary` ``metrics.json`` from rows (means, breakdowns, causes, latency);

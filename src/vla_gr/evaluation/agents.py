@@ -12,7 +12,8 @@ agent will run in, so that privileged agents (the geodesic expert) can read the 
 Later work registers more agents with :func:`register_agent`.
 
 A *variant* (``eval.variants.<name>``, :class:`~vla_gr.configs.schema.VariantConfig`) is a
-named agent made of a registered one (``checkpoint`` or ``true_mask``), a checkpoint and
+named agent made of a registered one (``checkpoint``, ``true_mask`` or ``true_category``), a
+checkpoint and
 inference-only overrides; :func:`resolve_agent` turns any agent name into the registered
 agent and the config it is built with, in the main process and in every worker alike.
 """
@@ -49,6 +50,8 @@ __all__ = [
 
 AgentFactory = Callable[[object, object], object]
 AGENTS: dict[str, AgentFactory] = {}
+#: Agents that run a checkpoint's dual system on privileged S2 perception (their ceilings).
+PRIVILEGED_S2 = ("true_mask", "true_category")
 
 
 class AgentError(UserError, ValueError):
@@ -102,7 +105,7 @@ def resolve_agent(name: str, cfg) -> tuple[str, object]:
 
 def agent_checkpoint(base: str, cfg) -> str | None:
     """The checkpoint that registered agent ``base`` loads under ``cfg`` (None: none)."""
-    return cfg.eval.checkpoint if base in ("checkpoint", "true_mask") else None
+    return cfg.eval.checkpoint if base in ("checkpoint", *PRIVILEGED_S2) else None
 
 
 def check_agent(name: str, cfg) -> None:
@@ -114,6 +117,8 @@ def check_agent(name: str, cfg) -> None:
             checkpoint_policy(sub)
         elif base == "true_mask":
             true_mask_model(sub)
+        elif base == "true_category":
+            checkpoint_policy(sub, dual_system=True, agent=base)
     except AgentError as err:
         if name in AGENTS:
             raise
@@ -235,6 +240,40 @@ class TrueMaskAgent:
         return {}
 
 
+class TrueCategoryAgent(TrueMaskAgent):
+    """The learned goal head with its pixels gated by the TRUE category mask (privileged).
+
+    S2's likelihood is the goal head's, zeroed on pixels that do not show an object of the
+    goal's category (from the env's ``semantic`` observation): the goal head still has to pick
+    the instructed instance among same-category ones, but never fires on another category.
+    Between ``checkpoint`` and ``true_mask`` it tells how much of the gap is category
+    recognition. Needs a dual-system ``eval.checkpoint`` (with ``eval.model_overrides``).
+    """
+
+    def __init__(self, cfg, env) -> None:
+        from vla_gr.policy.dual_system import GroundedDualSystem
+
+        if not cfg.eval.checkpoint:
+            raise AgentError("agent=true_category gates a checkpoint's goal head; give checkpoint=")
+        self.env = env
+        self.policy = checkpoint_policy(cfg, dual_system=True, agent="true_category")
+        self.system = GroundedDualSystem.from_model_config(
+            self._gated, self.policy.config, self.policy.s1
+        )
+
+    def _gated(self, obs) -> tuple[np.ndarray, float]:
+        if "semantic" not in obs:
+            raise AgentError("agent=true_category needs the env's semantic observation")
+        u = self.env.unwrapped
+        same = [o.instance_id for o in u.house.objects if o.category == u.goal.category]
+        mask = np.isin(np.asarray(obs["semantic"]), same)  # (H, W)
+        pixels, visible = self.policy.goal_likelihood(obs)  # (H, W), probability
+        return pixels * mask, visible
+
+    def parameters(self) -> dict[str, int]:
+        return module_parameters(self.policy)
+
+
 class ExpertAgent:
     """The privileged geodesic expert (knows the goal's position)."""
 
@@ -340,10 +379,10 @@ def check_checkpoint(cfg, path: str | None) -> None:
         )
 
 
-def checkpoint_policy(cfg, dual_system: bool = False):
+def checkpoint_policy(cfg, dual_system: bool = False, agent: str = "true_mask"):
     """``VLAGRPolicy`` of ``eval.checkpoint`` with ``eval.model_overrides`` on ``eval.device``,
     checked first (:func:`check_checkpoint`); AgentError when it cannot be built (or is not
-    a dual system when ``dual_system``)."""
+    a dual system when ``dual_system``; ``agent`` names who needs one)."""
     from omegaconf.errors import OmegaConfBaseException
 
     from vla_gr.checkpoint import CheckpointError
@@ -360,7 +399,7 @@ def checkpoint_policy(cfg, dual_system: bool = False):
         raise AgentError(f"model_overrides={overrides} do not apply to {path}: {first}") from None
     if dual_system and not policy.has_goal_head:
         raise AgentError(
-            f"checkpoint {path} has model.agent={policy.config.agent}; agent=true_mask needs "
+            f"checkpoint {path} has model.agent={policy.config.agent}; agent={agent} needs "
             "a dual-system checkpoint"
         )
     return policy.eval()
@@ -379,6 +418,11 @@ def _expert_agent(cfg, env) -> ExpertAgent:
 @register_agent("true_mask")
 def _true_mask_agent(cfg, env) -> TrueMaskAgent:
     return TrueMaskAgent(cfg, env)
+
+
+@register_agent("true_category")
+def _true_category_agent(cfg, env) -> TrueCategoryAgent:
+    return TrueCategoryAgent(cfg, env)
 
 
 @register_agent("random")
