@@ -180,7 +180,7 @@ def test_each_failure_cause_comes_from_an_agent_built_to_cause_it(tmp_path, monk
     near = rows["stop/at-distractor"]["stopped_near"]  # the distractor it stopped beside
     assert near["category"] == rows["stop/at-distractor"]["goal_category"]
     assert near["distance"] < 0.5 and rows["stop/at-distractor"]["wrong_stop"] == "same_category"
-    assert all(r["wrong_stop"] is not None for k, r in rows.items())
+    assert all(r["wrong_stop"] is not None for r in rows.values())
     assert set(causes("spin", "eval.stuck_steps=20").values()) == {"stuck"}
     still = causes("still", "eval.stuck_steps=100")  # never "stuck": window > budget
     assert still["facing-goal"] == "timeout_goal_seen"

@@ -217,11 +217,17 @@ class TrueMaskAgent:
         model, s1 = true_mask_model(cfg)
         self.system = GroundedDualSystem.from_model_config(self._true_mask, model, s1)
 
-    def _true_mask(self, obs) -> np.ndarray:
+    name = "true_mask"  # the registered name, for errors
+
+    def _semantic(self, obs) -> np.ndarray:
+        """The env's instance-id image (H, W); AgentError when the env does not render it."""
         if "semantic" not in obs:
-            raise AgentError("agent=true_mask needs the env's semantic observation")
+            raise AgentError(f"agent={self.name} needs the env's semantic observation")
+        return np.asarray(obs["semantic"])
+
+    def _true_mask(self, obs) -> np.ndarray:
         goal = int(self.env.unwrapped.goal.instance_id)
-        return (np.asarray(obs["semantic"]) == goal).astype(np.float32)  # (H, W)
+        return (self._semantic(obs) == goal).astype(np.float32)  # (H, W)
 
     def reset(self, seed: int | None = None) -> None:
         self.system.reset()
@@ -250,23 +256,23 @@ class TrueCategoryAgent(TrueMaskAgent):
     recognition. Needs a dual-system ``eval.checkpoint`` (with ``eval.model_overrides``).
     """
 
+    name = "true_category"
+
     def __init__(self, cfg, env) -> None:
         from vla_gr.policy.dual_system import GroundedDualSystem
 
         if not cfg.eval.checkpoint:
             raise AgentError("agent=true_category gates a checkpoint's goal head; give checkpoint=")
         self.env = env
-        self.policy = checkpoint_policy(cfg, dual_system=True, agent="true_category")
+        self.policy = checkpoint_policy(cfg, dual_system=True, agent=self.name)
         self.system = GroundedDualSystem.from_model_config(
             self._gated, self.policy.config, self.policy.s1
         )
 
     def _gated(self, obs) -> tuple[np.ndarray, float]:
-        if "semantic" not in obs:
-            raise AgentError("agent=true_category needs the env's semantic observation")
         u = self.env.unwrapped
         same = [o.instance_id for o in u.house.objects if o.category == u.goal.category]
-        mask = np.isin(np.asarray(obs["semantic"]), same)  # (H, W)
+        mask = np.isin(self._semantic(obs), same)  # (H, W)
         pixels, visible = self.policy.goal_likelihood(obs)  # (H, W), probability
         return pixels * mask, visible
 

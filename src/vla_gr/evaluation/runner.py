@@ -61,6 +61,12 @@ def instruction_kind(instruction: str) -> str:
     return "category"
 
 
+def _footprint_gap(obj, xy: tuple[float, float]) -> float:
+    """Straight-line distance (m) from ``xy`` to ``obj``'s footprint bounding circle: a lower
+    bound of the distance to the footprint (negative inside the circle)."""
+    return math.hypot(obj.x - xy[0], obj.y - xy[1]) - math.hypot(*obj.half_extents)
+
+
 def _distractor_distances(env, xy: tuple[float, float]) -> dict[str, float]:
     """Distance (m) from ``xy`` to each object of the goal's category but the goal.
 
@@ -75,7 +81,7 @@ def _distractor_distances(env, xy: tuple[float, float]) -> dict[str, float]:
     out = {}
     for oid in distractors(u.house, u.goal.instance_id):
         obj = u.house.object(oid)
-        bound = math.hypot(obj.x - xy[0], obj.y - xy[1]) - math.hypot(*obj.half_extents)
+        bound = _footprint_gap(obj, xy)
         if bound > u.success_distance:
             out[str(oid)] = round(bound, 4)
             continue
@@ -97,12 +103,8 @@ def _nearest_object(env, xy: tuple[float, float]) -> dict:
     """The object whose footprint is nearest to ``xy`` (straight line from the footprint's
     bounding circle, 0 inside it): id, category, colour, room and that distance (m)."""
     house = env.unwrapped.house
-
-    def gap(obj) -> float:
-        return max(0.0, math.hypot(obj.x - xy[0], obj.y - xy[1]) - math.hypot(*obj.half_extents))
-
-    obj = min(house.objects, key=gap)
-    return {**_object_summary(house, obj), "distance": round(gap(obj), 4)}
+    obj = min(house.objects, key=lambda o: _footprint_gap(o, xy))
+    return {**_object_summary(house, obj), "distance": round(max(0.0, _footprint_gap(obj, xy)), 4)}
 
 
 def _goal_pixels(obs: dict, goal_id: int) -> int:

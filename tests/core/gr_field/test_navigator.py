@@ -95,6 +95,10 @@ def test_frames_the_goal_head_calls_goal_free_cast_no_votes(threshold):
     tick(nav, pose, like, visible=0.5)  # at the threshold: votes again
     tick(nav, pose, like, visible=0.9)
     assert nav.committed
+    seen = nav.tick_goal_pixels
+    assert seen > 0
+    tick(nav, pose, like, visible=0.3)  # gated: a tick that casts no votes counts no pixels
+    assert nav.tick_goal_pixels == (0 if threshold else seen)
 
 
 def test_stop_only_when_the_confirmed_goal_is_within_stop_distance():

@@ -210,6 +210,7 @@ class Navigator:
         pose = torch.as_tensor(np.asarray(obs["pose"], np.float32)).reshape(1, 3)  # (1, 3)
         like = torch.as_tensor(np.asarray(goal_likelihood, np.float32)).reshape(depth.shape)
         votes_allowed = float(goal_visible) >= cfg.visible_threshold
+        self.tick_goal_pixels = 0  # set by _vote; stays 0 on a tick that casts no votes
         visible = votes_allowed and self._vote(depth, pose, like)  # goal pixels in view now
         confirmed = self.goal_votes >= cfg.confirm_ticks  # (H, W)
         gate = torch.from_numpy(confirmed)[None]  # (1, H, W)
@@ -335,7 +336,6 @@ class Navigator:
         """
         cfg, fcfg = self.config, self.field_config
         hits = (like >= cfg.pixel_threshold).reshape(1, -1)  # (1, N)
-        self.tick_goal_pixels = 0
         if not bool(hits.any()):
             return False
         points, valid = project_depth(
