@@ -93,6 +93,25 @@ def test_mismatched_weights_are_refused_with_names():
     assert "extra.weight" in msg
 
 
+def test_a_warm_start_may_lack_entries_but_not_carry_extra_or_misshaped_ones():
+    model = tiny_policy(0)
+    fresh = {k: v.clone() for k, v in model.state_dict().items()}
+    source = tiny_policy(1).state_dict()
+    partial = {k: v for k, v in source.items() if k != "pose.net.0.bias"}
+    with pytest.raises(ckpt.CheckpointError, match="1 missing"):
+        ckpt.load_model_state(model, partial, "ckpt-x")
+    assert ckpt.load_model_state(model, partial, "ckpt-x", allow_missing=True) == [
+        "pose.net.0.bias"
+    ]
+    loaded = model.state_dict()
+    torch.testing.assert_close(loaded["pose.net.0.bias"], fresh["pose.net.0.bias"])
+    for key, value in partial.items():
+        torch.testing.assert_close(loaded[key], value)
+    for bad in ({**partial, "extra.weight": torch.zeros(1)}, {**partial, "vision.pos": torch.zeros(7)}):
+        with pytest.raises(ckpt.CheckpointError):
+            ckpt.load_model_state(model, bad, "ckpt-x", allow_missing=True)
+
+
 def test_config_differences_names_keys():
     old = {"model": {"dim": 32, "peft": {"enabled": False}}, "seed": 0}
     new = {"model": {"dim": 64, "peft": {"enabled": True}}, "seed": 0}

@@ -341,9 +341,18 @@ def _parse(path: Path, fname: str, reader):
         raise CheckpointError(f"checkpoint {path}: {fname} is unreadable ({err})") from None
 
 
-def load_model_state(model: nn.Module, tensors: Mapping[str, torch.Tensor], source: str) -> None:
+def load_model_state(
+    model: nn.Module,
+    tensors: Mapping[str, torch.Tensor],
+    source: str,
+    allow_missing: bool = False,
+) -> list[str]:
     """``model.load_state_dict(tensors)`` with a clear message on missing / extra / mis-shaped
-    entries (``source`` names the checkpoint in the message)."""
+    entries (``source`` names the checkpoint in the message).
+
+    With ``allow_missing`` the model's entries absent from ``tensors`` keep their current
+    values (a warm start of a model with a new output); they are returned, sorted.
+    """
     expected = model.state_dict()
     missing = sorted(set(expected) - set(tensors))
     extra = sorted(set(tensors) - set(expected))
@@ -353,7 +362,7 @@ def load_model_state(model: nn.Module, tensors: Mapping[str, torch.Tensor], sour
         if k in tensors and tuple(tensors[k].shape) != tuple(v.shape)
     ]
     problems = []
-    if missing:
+    if missing and not allow_missing:
         problems.append(f"{len(missing)} missing (e.g. {missing[:3]})")
     if extra:
         problems.append(f"{len(extra)} unexpected (e.g. {extra[:3]})")
@@ -365,4 +374,5 @@ def load_model_state(model: nn.Module, tensors: Mapping[str, torch.Tensor], sour
             + "; ".join(problems)
             + ". Was it trained with another model.* config?"
         )
-    model.load_state_dict(dict(tensors), strict=True)
+    model.load_state_dict(dict(tensors), strict=not allow_missing)
+    return missing if allow_missing else []

@@ -199,8 +199,15 @@ def build_policy(cfg: VLAGRConfig, normalizers: Mapping | None = None) -> VLAGRP
         model.set_normalization(normalizers)
     if cfg.training.init_from:
         loaded = ckpt.read_checkpoint(cfg.training.init_from)
-        ckpt.load_model_state(model, loaded.model, cfg.training.init_from)
+        fresh = ckpt.load_model_state(
+            model,
+            loaded.model,
+            cfg.training.init_from,
+            allow_missing=cfg.training.init_allow_missing,
+        )
         log.info("initialised weights from %s", cfg.training.init_from)
+        if fresh:
+            log.info("kept the fresh initialisation of %d entries: %s", len(fresh), fresh)
     apply_peft(model, cfg.model.peft)
     return model
 

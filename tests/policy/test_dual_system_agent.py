@@ -12,6 +12,7 @@ import torch
 from safetensors.torch import load_file
 
 from tests.helpers import train_overrides
+from vla_gr.checkpoint import CheckpointError
 from vla_gr.configs import ConfigError, load_config
 from vla_gr.core.dual_system import LearnedFollower
 from vla_gr.core.dual_system.s1_inputs import PlanMemory
@@ -57,6 +58,35 @@ def test_builds_only_the_goal_head_and_its_loss_is_the_last_frames():
     changed["rgb"][:, 0] = 0.0
     changed["goal_mask"][:, 0] = True
     torch.testing.assert_close(model(changed)["loss"], out["loss"])
+
+
+def test_the_category_output_learns_goal_or_distractors_and_gates_the_metrics():
+    model = _model("model.goal_head.category_head=true", "model.grounding.category_weight=0.5")
+    batch = make_fake_batch(model.config, batch_size=3, seed=2)
+    goal, others = batch["goal_mask"][:, -1, 0], batch["distractor_mask"][:, -1, 0]
+    assert others.any() and not (goal & others).any()
+    out = model(batch)
+    direct = model.goal_head(batch["rgb"][:, -1], batch["depth"][:, -1], batch["instruction"])
+    expected = goal_head_loss(
+        direct["pixel_logits"],
+        direct["visible_logits"],
+        goal,
+        category_logits=direct["category_logits"],
+        category_target=goal | others,  # every instance of the category: a distractor is 1
+        category_weight=0.5,
+    )
+    for key in ("loss", "category_bce", "category_dice"):
+        torch.testing.assert_close(out[key], expected[key])
+    # the held-out metrics score the gated probability S2 uses, not the raw instance output
+    outputs = model.goal_outputs(batch)
+    gated = torch.sigmoid(direct["pixel_logits"]) * torch.sigmoid(direct["category_logits"])
+    counts = model.goal_confusion(outputs)
+    raw = torch.sigmoid(direct["pixel_logits"])  # (B, H, W)
+    assert int((raw >= 0.5).sum()) != int((gated >= 0.5).sum())  # the check can tell them apart
+    assert counts["tp"] + counts["fp"] == int((gated >= 0.5).sum())
+    without = {k: v for k, v in batch.items() if k != "distractor_mask"}
+    with pytest.raises(ValueError, match="distractor_mask"):
+        model(without)
 
 
 def _obs(pose=(0.0, 0.0, 0.0)) -> dict:
@@ -270,3 +300,21 @@ def test_trains_resumes_and_reloads_with_identical_goal_head(tmp_path):
         expected = VLAGRPolicy.from_pretrained(straight_dir).goal_outputs(batch)
     torch.testing.assert_close(out["pixel_logits"], expected["pixel_logits"], rtol=0, atol=0)
     torch.testing.assert_close(out["visible_logits"], expected["visible_logits"], rtol=0, atol=0)
+
+
+def test_a_category_output_is_warm_started_from_a_goal_head_without_one(tmp_path, caplog):
+    base = _run(tmp_path, **{"training.steps": 1, "training.run_name": "base"})
+    init = Path(base["run_dir"]) / "checkpoints" / "latest"
+    warm = {
+        "training.steps": 1,
+        "training.run_name": "warm",
+        "training.init_from": str(init),
+        "model.goal_head.category_head": True,
+    }
+    with pytest.raises(CheckpointError, match="2 missing"):
+        _run(tmp_path, **warm)
+    caplog.set_level("INFO")
+    _run(tmp_path, **warm, **{"training.init_allow_missing": True})
+    assert "goal_head.category_logit.weight" in caplog.text
+    rows = read_metrics(tmp_path / "runs" / "warm" / "metrics.jsonl")
+    assert {"train/category_bce", "train/category_dice"} <= set(rows[0])

@@ -70,6 +70,9 @@ class TrainingConfig:
     compile: bool = False  # torch.compile the policy
     ddp_backend: str = "auto"  # auto: nccl on CUDA, gloo on CPU
     init_from: str | None = None  # checkpoint folder whose weights initialise the model
+    # init_from may lack entries the model has (a newly added output keeps its fresh
+    # initialisation, and the log lists it); extra or mis-shaped entries still fail
+    init_allow_missing: bool = False
     # Evaluation / checkpointing.
     val_every: int = 200  # optimiser steps between validation losses (0 = never)
     val_batches: int = 8  # batches per validation (per process)

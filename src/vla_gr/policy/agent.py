@@ -230,7 +230,8 @@ class VLAGRPolicy(nn.Module):
         """The goal head on the last observation frame of each window of ``batch``.
 
         Returns ``pixel_logits`` (B, H, W), ``visible_logits`` (B,), the ``target`` goal mask
-        (B, H, W) bool and, when the batch has them, ``distractors`` (B, H, W) bool.
+        (B, H, W) bool and, when the batch has them, ``distractors`` (B, H, W) bool; a head
+        with a category output adds ``category_logits`` (B, H, W).
         """
         if not self.has_goal_head:
             raise RuntimeError("this agent has no goal head (model.agent=end_to_end)")
@@ -247,11 +248,20 @@ class VLAGRPolicy(nn.Module):
         out["target"] = batch["goal_mask"][:, -1, 0].bool()  # (B, H, W)
         if "distractor_mask" in batch:
             out["distractors"] = batch["distractor_mask"][:, -1, 0].bool()  # (B, H, W)
+        elif "category_logits" in out:
+            raise ValueError(
+                "model.goal_head.category_head needs batch['distractor_mask'] (its target is the "
+                "goal mask | the distractor mask); collect the store again to record it"
+            )
         return out
 
     def goal_loss(self, outputs: Mapping) -> dict[str, torch.Tensor]:
         """``goal_head_loss`` of :meth:`goal_outputs` with ``model.grounding``'s weights."""
         g = self.config.grounding
+        category = outputs.get("category_logits")  # (B, H, W) or None
+        category_target = None  # (B, H, W) bool: every instance of the instructed category
+        if category is not None:
+            category, category_target = category.float(), outputs["target"] | outputs["distractors"]
         return goal_head_loss(
             outputs["pixel_logits"].float(),
             outputs["visible_logits"].float(),
@@ -260,13 +270,16 @@ class VLAGRPolicy(nn.Module):
             pos_weight=g.pos_weight,
             dice_weight=g.dice_weight,
             visible_weight=g.visible_weight,
+            category_logits=category,
+            category_target=category_target,
+            category_weight=g.category_weight,
         )
 
     def goal_confusion(self, outputs: Mapping) -> dict[str, int]:
         """``mask_confusion`` counts of :meth:`goal_outputs` (``model.grounding`` thresholds)."""
         g = self.config.grounding
         return mask_confusion(
-            torch.sigmoid(outputs["pixel_logits"].float()),
+            self.goal_head.pixel_probability(outputs),
             torch.sigmoid(outputs["visible_logits"].float()),
             outputs["target"],
             threshold=g.threshold,

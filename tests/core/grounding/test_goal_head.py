@@ -143,8 +143,55 @@ def test_loss_and_metric_defaults_are_the_configs():
     c = GroundingConfig()
     loss = inspect.signature(goal_head_loss).parameters
     conf = inspect.signature(mask_confusion).parameters
-    for key in ("min_pixels", "pos_weight", "dice_weight", "visible_weight"):
+    for key in ("min_pixels", "pos_weight", "dice_weight", "visible_weight", "category_weight"):
         assert loss[key].default == getattr(c, key)
     assert (conf["threshold"].default, conf["min_pixels"].default) == (c.threshold, c.min_pixels)
     with pytest.raises(ValueError, match="model.grounding.threshold"):
         GroundingConfig(threshold=1.0)
+
+
+def test_category_output_gates_the_instance_probability():
+    head = _head(category_head=True)
+    rgb, depth = _frames()
+    instructions = ["find the red chair", "go to the bed"]
+    out = head(rgb, depth, instructions)
+    assert out["category_logits"].shape == (2, 16, 16)
+    p, v = head.likelihood(rgb, depth, instructions)
+    expected = torch.sigmoid(out["pixel_logits"]) * torch.sigmoid(out["category_logits"])
+    torch.testing.assert_close(p, expected)
+    torch.testing.assert_close(v, torch.sigmoid(out["visible_logits"]))
+    # a pixel the category output rules out is not the goal, however sure the instance output is
+    gated = GoalHead.pixel_probability(
+        {"pixel_logits": torch.full((1, 2, 2), 20.0), "category_logits": torch.tensor(
+            [[[20.0, -20.0], [20.0, -20.0]]])}  # fmt: skip
+    )
+    assert (gated[0, :, 0] > 0.99).all() and (gated[0, :, 1] < 1e-6).all()
+    # without the category output the probability is the instance output's alone
+    plain = _head()
+    assert "category_logits" not in plain(rgb, depth, instructions)
+    p0, _ = plain.likelihood(rgb, depth, instructions)
+    torch.testing.assert_close(p0, torch.sigmoid(plain(rgb, depth, instructions)["pixel_logits"]))
+
+
+def test_category_loss_is_the_weighted_mask_terms_on_goal_or_distractors():
+    logits = torch.tensor([[[0.0, 2.0], [-1.0, 0.5]]])  # (1, 2, 2)
+    category = torch.tensor([[[1.0, -2.0], [0.5, 0.0]]])
+    goal = torch.tensor([[[True, False], [False, False]]])
+    same_category = torch.tensor([[[True, False], [True, False]]])  # goal + one distractor
+    vis = torch.tensor([0.3])
+    base = goal_head_loss(logits, vis, goal, pos_weight=3.0)
+    out = goal_head_loss(logits, vis, goal, pos_weight=3.0, category_logits=category,
+                         category_target=same_category, category_weight=0.5)  # fmt: skip
+    sp = lambda x: math.log1p(math.exp(x))  # noqa: E731  softplus
+    bce = (3.0 * sp(-1.0) + sp(-2.0) + 3.0 * sp(-0.5) + sp(0.0)) / 4.0
+    p = torch.sigmoid(category).flatten().tolist()
+    dice = 1.0 - (2.0 * (p[0] + p[2]) + 1.0) / (sum(p) + 2.0 + 1.0)
+    assert out["category_bce"].item() == pytest.approx(bce, rel=1e-6)
+    assert out["category_dice"].item() == pytest.approx(dice, rel=1e-6)
+    assert out["loss"].item() == pytest.approx(base["loss"].item() + 0.5 * (bce + dice), rel=1e-6)
+    for key in ("pixel_bce", "dice", "visible_bce"):
+        assert out[key].item() == base[key].item()
+    with pytest.raises(ValueError, match="cover the goal"):
+        goal_head_loss(logits, vis, goal, category_logits=category, category_target=~goal)
+    with pytest.raises(ValueError, match="go together"):
+        goal_head_loss(logits, vis, goal, category_logits=category)

@@ -2,7 +2,11 @@
 
 S2's perception. Input: one RGB-D frame and the instruction; output: a per-pixel logit that
 the pixel belongs to the goal instance (not any object of its category: the same-category
-distractors are negatives) and a per-frame logit that the goal is visible at all.
+distractors are negatives) and a per-frame logit that the goal is visible at all. With
+``category_head`` it also gives a per-pixel logit that the pixel shows an object of the
+instructed *category* (the goal or any same-category distractor); the instance probability S2
+uses is then the product of the two, so the instance output only has to pick among objects of
+the right category.
 
 Architecture: a small U-Net (stride-2 encoder, nearest-upsampling decoder with skips) whose
 every stage is FiLM-conditioned on the instruction embedding (the frozen MiniLM sentence
@@ -36,6 +40,7 @@ class GoalHeadConfig:
     text_dim: int = 128  # width of the projected instruction embedding
     text_buckets: int = 4096  # hashed encoder vocabulary
     max_depth: float = MAX_DEPTH  # metres; depth is clipped and scaled to [-1, 1]
+    category_head: bool = False  # second per-pixel output: "shows the instructed category"
 
     def __post_init__(self) -> None:
         if not self.channels or min(self.channels) < 1:
@@ -91,6 +96,7 @@ class GoalHead(nn.Module):
             for i in reversed(range(len(c.channels)))
         )
         self.pixel_logit = nn.Conv2d(c.stem_channels, 1, 1)
+        self.category_logit = nn.Conv2d(c.stem_channels, 1, 1) if c.category_head else None
         self.visible_logit = nn.Sequential(
             nn.Linear(2 * widths[-1], widths[-1]), nn.SiLU(), nn.Linear(widths[-1], 1)
         )
@@ -131,7 +137,8 @@ class GoalHead(nn.Module):
             instructions: ``B`` strings.
 
         Returns:
-            ``pixel_logits`` (B, H, W) and ``visible_logits`` (B,).
+            ``pixel_logits`` (B, H, W) and ``visible_logits`` (B,); with ``category_head``
+            also ``category_logits`` (B, H, W).
         """
         x = self._inputs(rgb, depth)  # (B, 4, H, W)
         text = self.encode_text(instructions)  # (B, E)
@@ -147,10 +154,22 @@ class GoalHead(nn.Module):
             skip = skips.pop()  # (B, C_i, 2h, 2w)
             h = F.interpolate(h, size=skip.shape[2:], mode="nearest")  # (B, C_{i+1}, 2h, 2w)
             h = stage(torch.cat([h, skip], dim=1), text)  # (B, C_i, 2h, 2w)
-        return {
+        out = {
             "pixel_logits": self.pixel_logit(h)[:, 0],  # (B, H, W)
             "visible_logits": self.visible_logit(pooled)[:, 0],  # (B,)
         }
+        if self.category_logit is not None:
+            out["category_logits"] = self.category_logit(h)[:, 0]  # (B, H, W)
+        return out
+
+    @staticmethod
+    def pixel_probability(outputs: dict[str, torch.Tensor]) -> torch.Tensor:
+        """(B, H, W) probability that a pixel shows the goal instance: the instance output,
+        gated by the category output when the head has one."""
+        p = torch.sigmoid(outputs["pixel_logits"].float())  # (B, H, W)
+        if "category_logits" in outputs:
+            p = p * torch.sigmoid(outputs["category_logits"].float())  # (B, H, W)
+        return p
 
     @torch.no_grad()
     def likelihood(
@@ -158,4 +177,4 @@ class GoalHead(nn.Module):
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Probabilities: per pixel (B, H, W) and goal visible per frame (B,)."""
         out = self.forward(rgb, depth, instructions)
-        return torch.sigmoid(out["pixel_logits"]), torch.sigmoid(out["visible_logits"])
+        return self.pixel_probability(out), torch.sigmoid(out["visible_logits"].float())

@@ -1,8 +1,9 @@
 """Losses and metrics of the goal head (pure functions; :mod:`.goal_head` is the model).
 
 Targets are the goal instance's mask only, so a pixel of a same-category distractor is a
-negative like the floor. A frame counts as "goal visible" when the goal covers at least
-``min_pixels`` pixels (the same threshold as the evaluation's failure causes).
+negative like the floor. The optional category output's target is the goal's mask together
+with its same-category distractors' masks. A frame counts as "goal visible" when the goal
+covers at least ``min_pixels`` pixels (the same threshold as the evaluation's failure causes).
 """
 
 from __future__ import annotations
@@ -33,12 +34,13 @@ class GroundingConfig:
     pos_weight: float = 4.0  # weight of goal pixels in the BCE (they are rare)
     dice_weight: float = 1.0
     visible_weight: float = 0.5
+    category_weight: float = 1.0  # weight of the category output's BCE + Dice (if the head has it)
     threshold: float = 0.5  # probability above which a pixel / frame is predicted goal
 
     def __post_init__(self) -> None:
         for key in ("min_pixels", "pos_weight"):
             check_positive(f"model.grounding.{key}", getattr(self, key))
-        for key in ("dice_weight", "visible_weight"):
+        for key in ("dice_weight", "visible_weight", "category_weight"):
             check_positive(f"model.grounding.{key}", getattr(self, key), allow_zero=True)
         if not 0.0 < self.threshold < 1.0:
             raise ValueError(f"model.grounding.threshold={self.threshold} must be in (0, 1)")
@@ -52,6 +54,26 @@ def visible_targets(target: torch.Tensor, min_pixels: int) -> torch.Tensor:
     return (target.flatten(1).sum(dim=1) >= min_pixels).float()  # (B,)
 
 
+def _mask_terms(
+    logits: torch.Tensor, target: torch.Tensor, pos_weight: float
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Weighted BCE over all pixels and soft Dice over the frames whose target is not empty.
+
+    logits (B, H, W), target (B, H, W) bool -> (bce, dice) scalars.
+    """
+    if logits.shape != target.shape:
+        raise ValueError(f"logits {tuple(logits.shape)} and target {tuple(target.shape)} differ")
+    t = target.float()  # (B, H, W)
+    weight = torch.tensor(pos_weight, dtype=logits.dtype, device=logits.device)
+    bce = F.binary_cross_entropy_with_logits(logits, t, pos_weight=weight)
+    p = torch.sigmoid(logits).flatten(1)  # (B, H*W)
+    inter = (p * t.flatten(1)).sum(dim=1)  # (B,)
+    dice_per = 1.0 - (2.0 * inter + 1.0) / (p.sum(dim=1) + t.flatten(1).sum(dim=1) + 1.0)  # (B,)
+    shown = target.flatten(1).any(dim=1).float()  # (B,)
+    dice = (dice_per * shown).sum() / shown.sum().clamp(min=1.0)
+    return bce, dice
+
+
 def goal_head_loss(
     pixel_logits: torch.Tensor,
     visible_logits: torch.Tensor,
@@ -60,8 +82,12 @@ def goal_head_loss(
     pos_weight: float = _DEFAULT.pos_weight,
     dice_weight: float = _DEFAULT.dice_weight,
     visible_weight: float = _DEFAULT.visible_weight,
+    category_logits: torch.Tensor | None = None,
+    category_target: torch.Tensor | None = None,
+    category_weight: float = _DEFAULT.category_weight,
 ) -> dict[str, torch.Tensor]:
-    """Weighted BCE per pixel + soft Dice on frames showing the goal + BCE on visibility.
+    """Weighted BCE per pixel + soft Dice on frames showing the goal + BCE on visibility
+    (+ ``category_weight`` x the same BCE + Dice on the category output, when given).
 
     Args:
         pixel_logits: (B, H, W).
@@ -70,26 +96,28 @@ def goal_head_loss(
         min_pixels: goal pixels for a frame to count as "goal visible".
         pos_weight: weight of goal pixels in the BCE (they are rare).
         dice_weight, visible_weight: weights of the Dice and visibility terms.
+        category_logits: (B, H, W) logits of the category output, or None.
+        category_target: (B, H, W) bool, every instance of the instructed category.
+        category_weight: weight of the category terms.
 
     Returns:
-        ``loss`` (scalar) and its parts ``pixel_bce``, ``dice``, ``visible_bce``.
+        ``loss`` (scalar) and its parts ``pixel_bce``, ``dice``, ``visible_bce`` (and
+        ``category_bce``, ``category_dice`` with a category output).
     """
-    if pixel_logits.shape != target.shape:
-        raise ValueError(
-            f"pixel_logits {tuple(pixel_logits.shape)} and target {tuple(target.shape)} differ"
-        )
-    t = target.float()  # (B, H, W)
-    weight = torch.tensor(pos_weight, dtype=pixel_logits.dtype, device=pixel_logits.device)
-    pixel_bce = F.binary_cross_entropy_with_logits(pixel_logits, t, pos_weight=weight)
+    pixel_bce, dice = _mask_terms(pixel_logits, target, pos_weight)
     visible = visible_targets(target, min_pixels)  # (B,)
-    p = torch.sigmoid(pixel_logits).flatten(1)  # (B, H*W)
-    inter = (p * t.flatten(1)).sum(dim=1)  # (B,)
-    dice_per = 1.0 - (2.0 * inter + 1.0) / (p.sum(dim=1) + t.flatten(1).sum(dim=1) + 1.0)  # (B,)
-    shown = target.flatten(1).any(dim=1).float()  # (B,)
-    dice = (dice_per * shown).sum() / shown.sum().clamp(min=1.0)
     visible_bce = F.binary_cross_entropy_with_logits(visible_logits, visible)
     loss = pixel_bce + dice_weight * dice + visible_weight * visible_bce
-    return {"loss": loss, "pixel_bce": pixel_bce, "dice": dice, "visible_bce": visible_bce}
+    parts = {"pixel_bce": pixel_bce, "dice": dice, "visible_bce": visible_bce}
+    if (category_logits is None) != (category_target is None):
+        raise ValueError("category_logits and category_target go together")
+    if category_logits is not None:
+        if (target.bool() & ~category_target.bool()).any():
+            raise ValueError("category_target must cover the goal mask (goal | distractors)")
+        category_bce, category_dice = _mask_terms(category_logits, category_target, pos_weight)
+        loss = loss + category_weight * (category_bce + dice_weight * category_dice)
+        parts |= {"category_bce": category_bce, "category_dice": category_dice}
+    return {"loss": loss, **parts}
 
 
 def mask_confusion(
