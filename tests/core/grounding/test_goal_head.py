@@ -161,11 +161,15 @@ def test_category_output_gates_the_instance_probability():
     torch.testing.assert_close(p, expected)
     torch.testing.assert_close(v, torch.sigmoid(out["visible_logits"]))
     # a pixel the category output rules out is not the goal, however sure the instance output is
-    gated = GoalHead.pixel_probability(
-        {"pixel_logits": torch.full((1, 2, 2), 20.0), "category_logits": torch.tensor(
-            [[[20.0, -20.0], [20.0, -20.0]]])}  # fmt: skip
-    )
+    sure = {"pixel_logits": torch.full((1, 2, 2), 20.0),
+            "category_logits": torch.tensor([[[20.0, -20.0], [20.0, -20.0]]])}  # fmt: skip
+    gated = head.pixel_probability(sure)
     assert (gated[0, :, 0] > 0.99).all() and (gated[0, :, 1] < 1e-6).all()
+    # the ablation switch: the instance output alone
+    ungated = _head(category_head=True, category_gate=False)
+    assert (ungated.pixel_probability(sure) > 0.99).all()
+    with pytest.raises(ValueError, match="category_gate=false"):
+        GoalHeadConfig(category_gate=False)  # no category output to switch off
     # without the category output the probability is the instance output's alone
     plain = _head()
     assert "category_logits" not in plain(rgb, depth, instructions)

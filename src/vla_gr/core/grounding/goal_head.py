@@ -41,11 +41,17 @@ class GoalHeadConfig:
     text_buckets: int = 4096  # hashed encoder vocabulary
     max_depth: float = MAX_DEPTH  # metres; depth is clipped and scaled to [-1, 1]
     category_head: bool = False  # second per-pixel output: "shows the instructed category"
+    category_gate: bool = True  # inference: false = the instance output alone (an ablation)
 
     def __post_init__(self) -> None:
         if not self.channels or min(self.channels) < 1:
             raise ValueError(f"model.goal_head.channels={self.channels} must be positive widths")
         check_choice("model.goal_head.text_encoder", self.text_encoder, TEXT_ENCODERS)
+        if not self.category_gate and not self.category_head:
+            raise ValueError(
+                "model.goal_head.category_gate=false switches off a category output this head "
+                "does not have (model.goal_head.category_head=false)"
+            )
         for key in ("stem_channels", "text_dim", "text_buckets", "max_depth"):
             check_positive(f"model.goal_head.{key}", getattr(self, key))
 
@@ -162,12 +168,11 @@ class GoalHead(nn.Module):
             out["category_logits"] = self.category_logit(h)[:, 0]  # (B, H, W)
         return out
 
-    @staticmethod
-    def pixel_probability(outputs: dict[str, torch.Tensor]) -> torch.Tensor:
+    def pixel_probability(self, outputs: dict[str, torch.Tensor]) -> torch.Tensor:
         """(B, H, W) probability that a pixel shows the goal instance: the instance output,
-        gated by the category output when the head has one."""
+        gated by the category output when the head has one (and ``category_gate`` is on)."""
         p = torch.sigmoid(outputs["pixel_logits"].float())  # (B, H, W)
-        if "category_logits" in outputs:
+        if "category_logits" in outputs and self.config.category_gate:
             p = p * torch.sigmoid(outputs["category_logits"].float())  # (B, H, W)
         return p
 
