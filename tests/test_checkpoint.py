@@ -107,7 +107,8 @@ def test_a_warm_start_may_lack_entries_but_not_carry_extra_or_misshaped_ones():
     torch.testing.assert_close(loaded["pose.net.0.bias"], fresh["pose.net.0.bias"])
     for key, value in partial.items():
         torch.testing.assert_close(loaded[key], value)
-    for bad in ({**partial, "extra.weight": torch.zeros(1)}, {**partial, "vision.pos": torch.zeros(7)}):
+    extra, misshaped = {"extra.weight": torch.zeros(1)}, {"vision.pos": torch.zeros(7)}
+    for bad in ({**partial, **extra}, {**partial, **misshaped}):
         with pytest.raises(ckpt.CheckpointError):
             ckpt.load_model_state(model, bad, "ckpt-x", allow_missing=True)
 
