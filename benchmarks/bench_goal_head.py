@@ -12,8 +12,9 @@ frame is scored: a pixel is predicted goal when its probability is >= the checkp
 it covers >= ``model.grounding.min_pixels`` pixels. The instruction kind is what the
 instruction uses to single out its object (``parse_instruction``): colour, room, relation or
 a combination. Latency: one ``GoalHead.likelihood`` call at batch 1 on one thread, with the
-instruction's embedding cached (it is constant over an episode). Writes ``<out>.json`` and
-``<out>.md``.
+instruction's embedding cached (it is constant over an episode). A head with a category output
+also gets that output's pixel precision / recall / IoU against every instance of the
+instructed category (goal | distractors). Writes ``<out>.json`` and ``<out>.md``.
 """
 
 from __future__ import annotations
@@ -49,7 +50,8 @@ KIND_WORDS = (("color", "colour"), ("room", "room"), ("near", "relation"))
 SHOWN = ("pixel_precision", "pixel_recall", "pixel_iou", "visible_accuracy", "on_distractor")
 
 #: rgb (B, 3, H, W) uint8, depth (B, 1, H, W), instructions -> (pixel prob (B, H, W), visible (B,))
-Predictor = Callable[[torch.Tensor, torch.Tensor, list[str]], tuple[torch.Tensor, torch.Tensor]]
+#: (rgb, depth, instructions) -> (pixel (B, H, W), visible (B,)[, category (B, H, W)])
+Predictor = Callable[[torch.Tensor, torch.Tensor, list[str]], tuple[torch.Tensor, ...]]
 
 
 def instruction_kind(text: str) -> str:
@@ -98,7 +100,9 @@ def score_store(
     """Metrics of ``predict`` on every frame of ``store``: overall and per instruction kind.
 
     Returns ``{"overall": {...}, "by_kind": {kind: {...}}}``; each entry holds the
-    ``confusion_metrics`` ratios, the summed counts and ``episodes``.
+    ``confusion_metrics`` ratios, the summed counts and ``episodes``. When ``predict`` also
+    returns a category probability and the store has distractor masks, ``"category"`` holds
+    its pixel metrics against goal | distractors.
     """
     frames = GoalFrameDataset(store, min_pixels=min_pixels)
     kinds = [instruction_kind(t) for t in frames.instructions]
@@ -115,7 +119,12 @@ def score_store(
                 if frames.distractor_mask is not None
                 else None
             )
-            pixel, visible = predict(rgb, depth, [it["instruction"] for it in items])
+            pixel, visible, *category = predict(rgb, depth, [it["instruction"] for it in items])
+            if category and others is not None:
+                part = mask_confusion(category[0], visible, target | others, threshold, min_pixels)
+                total = counts.setdefault("category", dict.fromkeys(part, 0))
+                for key, n in part.items():
+                    total[key] += n
             batch_kinds = np.asarray([kinds[s] for s in slot[start : start + len(items)]])
             for kind in ("overall", *sorted(set(batch_kinds))):
                 sel = torch.ones(len(items), dtype=torch.bool)
@@ -132,12 +141,16 @@ def score_store(
                 total = counts.setdefault(kind, dict.fromkeys(part, 0))
                 for key, n in part.items():
                     total[key] += n
-    episodes = {k: sum(1 for x in kinds if x == k) for k in set(kinds)} | {"overall": len(kinds)}
+    episodes = {k: sum(1 for x in kinds if x == k) for k in set(kinds)}
+    episodes |= {"overall": len(kinds), "category": len(kinds)}
     summary = {
         kind: confusion_metrics(c) | {"counts": c, "episodes": episodes[kind]}
         for kind, c in counts.items()
     }
-    return {"overall": summary.pop("overall"), "by_kind": summary}
+    result = {"overall": summary.pop("overall")}
+    if "category" in summary:
+        result["category"] = summary.pop("category")
+    return result | {"by_kind": summary}
 
 
 def latency(policy: VLAGRPolicy, repeats: int = 200, threads: int = 1) -> dict[str, float]:
@@ -176,6 +189,12 @@ def table(result: dict) -> str:
     for name, m in rows:
         values = " | ".join(f"{m[k]:.3f}" for k in SHOWN)
         lines.append(f"| {name} | {m['episodes']} | {values} |")
+    if "category" in result:
+        c = result["category"]
+        lines.append(
+            f"\nCategory output vs every instance of the instructed category: precision "
+            f"{c['pixel_precision']:.3f}, recall {c['pixel_recall']:.3f}, IoU {c['pixel_iou']:.3f}"
+        )
     lat = result["latency"]
     lines.append(
         f"\nGoal head at batch 1, {lat['threads']} thread(s): "
@@ -214,7 +233,12 @@ def run(args: argparse.Namespace) -> dict:
         store = held_out_store(cfg, path, args.split, args.episodes, args.workers)
 
         def predict(rgb, depth, instructions):
-            return policy.goal_head.likelihood(rgb, depth, instructions)
+            out = policy.goal_head(rgb, depth, instructions)
+            pixel = policy.goal_head.pixel_probability(out)  # (B, H, W), what S2 uses
+            visible = torch.sigmoid(out["visible_logits"])  # (B,)
+            if "category_logits" not in out:
+                return pixel, visible
+            return pixel, visible, torch.sigmoid(out["category_logits"])  # + (B, H, W)
 
         result = score_store(predict, store, g.threshold, g.min_pixels, args.batch_size)
         result["frames"] = store.num_frames

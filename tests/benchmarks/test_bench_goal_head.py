@@ -6,6 +6,7 @@ import importlib.util
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -68,6 +69,27 @@ def test_all_goal_predictor_scores_match_hand_counts(store):
     text = bench.table(result | {"latency": {"threads": 1, "p50_ms": 1.0, "p95_ms": 2.0}})
     rows = [line for line in text.splitlines() if line.startswith("| ")]
     assert len(rows) == 6 and rows[1].startswith("| all | 4 |")  # header, all, 4 kinds
+
+
+def test_a_category_output_is_scored_against_goal_or_distractors(store):
+    """A category output that marks exactly the distractors: precision 1 and recall =
+    distractor pixels / (goal + distractor pixels), since the goal pixels are missed."""
+
+    def distractors_only(rgb, depth, instructions):
+        B, _, H, W = rgb.shape
+        return torch.zeros(B, H, W), torch.zeros(B), torch.from_numpy(truth)  # one batch
+
+    episodes = [store.episode(e) for e in range(4)]
+    goal = sum(int(ep["goal_mask"].sum()) for ep in episodes)
+    others = sum(int(ep["distractor_mask"].sum()) for ep in episodes)
+    assert goal > 0 and others > 0
+    truth = np.concatenate([ep["distractor_mask"] for ep in episodes]).astype(np.float32)
+    result = bench.score_store(distractors_only, store, 0.5, 4, batch_size=store.num_frames)
+    assert result["category"]["pixel_precision"] == 1.0
+    assert result["category"]["pixel_recall"] == pytest.approx(others / (goal + others))
+    assert "category" not in result["by_kind"]
+    text = bench.table(result | {"latency": {"threads": 1, "p50_ms": 1.0, "p95_ms": 2.0}})
+    assert "Category output" in text and "precision 1.000" in text
 
 
 def test_checkpoint_end_to_end_collects_scores_and_writes(tmp_path):
