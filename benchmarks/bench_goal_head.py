@@ -14,7 +14,10 @@ instruction uses to single out its object (``parse_instruction``): colour, room,
 a combination. Latency: one ``GoalHead.likelihood`` call at batch 1 on one thread, with the
 instruction's embedding cached (it is constant over an episode). A head with a category output
 also gets that output's pixel precision / recall / IoU against every instance of the
-instructed category (goal | distractors). Writes ``<out>.json`` and ``<out>.md``.
+instructed category (goal | distractors). ``--paraphrase`` scores the same frames with each
+instruction rewritten by :func:`vla_gr.envs.paraphrase.paraphrase` (synonyms and sentence
+shapes the templates never use; one fixed rewrite per instruction), to tell whether the
+paraphrase gap of the closed loop is the goal head's. Writes ``<out>.json`` and ``<out>.md``.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ import os
 import platform
 import tempfile
 import time
+import zlib
 from collections.abc import Callable
 from pathlib import Path
 
@@ -221,6 +225,13 @@ def write_results(result: dict, out: Path) -> None:
     )
 
 
+def rewrite(instruction: str) -> str:
+    """One fixed paraphrase of ``instruction`` (its rng is seeded by the text's CRC32)."""
+    from vla_gr.envs.paraphrase import paraphrase
+
+    return paraphrase(instruction, np.random.default_rng(zlib.crc32(instruction.encode())))
+
+
 def run(args: argparse.Namespace) -> dict:
     """Collect (or reuse) the held-out store, score the checkpoint, time it; returns the result."""
     policy = VLAGRPolicy.from_pretrained(args.checkpoint)
@@ -233,12 +244,11 @@ def run(args: argparse.Namespace) -> dict:
         store = held_out_store(cfg, path, args.split, args.episodes, args.workers)
 
         def predict(rgb, depth, instructions):
-            out = policy.goal_head(rgb, depth, instructions)
-            pixel = policy.goal_head.pixel_probability(out)  # (B, H, W), what S2 uses
-            visible = torch.sigmoid(out["visible_logits"])  # (B,)
-            if "category_logits" not in out:
-                return pixel, visible
-            return pixel, visible, torch.sigmoid(out["category_logits"])  # + (B, H, W)
+            if args.paraphrase:
+                instructions = [rewrite(text) for text in instructions]
+            probs = policy.goal_head.probabilities(rgb, depth, instructions)
+            extra = (probs["category"],) if "category" in probs else ()  # (B, H, W)
+            return probs["pixel"], probs["visible"], *extra
 
         result = score_store(predict, store, g.threshold, g.min_pixels, args.batch_size)
         result["frames"] = store.num_frames
@@ -246,6 +256,7 @@ def run(args: argparse.Namespace) -> dict:
     result["command"] = "python benchmarks/bench_goal_head.py " + " ".join(args.argv)
     result["checkpoint"] = str(args.checkpoint)
     result["split"], result["episodes"] = args.split, args.episodes
+    result["paraphrase"] = bool(args.paraphrase)
     result["threshold"], result["min_pixels"] = g.threshold, g.min_pixels
     result["machine"] = f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores"
     return result
@@ -262,6 +273,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--repeats", type=int, default=200, help="latency repetitions")
     p.add_argument("--threads", type=int, default=1, help="torch threads for the latency")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help="results path without suffix")
+    p.add_argument("--paraphrase", action="store_true", help="score paraphrased instructions")
     args = p.parse_args(argv)
     args.argv = list(argv) if argv is not None else []
     return args

@@ -49,13 +49,14 @@ __all__ = ["VLAGRPolicy"]
 _OBS_KEYS = ("rgb", "depth", "pose")
 #: Model settings a loaded checkpoint may change (no weight depends on them): the planner,
 #: its GR field, which S1 drives and how it samples, the follower, the S2 schedule and
-#: whether the goal head's category output gates its instance output.
+#: the goal head's inference options (category gate, test-time flip).
 INFERENCE_SETTINGS = (
     "navigator.",
     "pursuit.",
     "gr_field.",
     "dual_system.planning_frequency_hz",
     "goal_head.category_gate",
+    "goal_head.test_time_flip",
     "s1.kind",
     "s1.use_s2",
     "s1.stop_threshold",

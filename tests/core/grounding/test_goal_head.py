@@ -199,3 +199,20 @@ def test_category_loss_is_the_weighted_mask_terms_on_goal_or_distractors():
         goal_head_loss(logits, vis, goal, category_logits=category, category_target=~goal)
     with pytest.raises(ValueError, match="go together"):
         goal_head_loss(logits, vis, goal, category_logits=category)
+
+
+def test_test_time_flip_averages_the_mirror_and_is_mirror_equivariant():
+    plain, flip = _head(category_head=True), _head(category_head=True, test_time_flip=True)
+    rgb, depth = _frames()
+    instructions = ["find the red chair", "go to the bed"]
+    p, v = plain.likelihood(rgb, depth, instructions)
+    pm, vm = plain.likelihood(rgb.flip(-1), depth.flip(-1), instructions)
+    p2, v2 = flip.likelihood(rgb, depth, instructions)
+    torch.testing.assert_close(p2, 0.5 * (p + pm.flip(-1)))
+    torch.testing.assert_close(v2, 0.5 * (v + vm))
+    assert not torch.allclose(p2, p)  # the mirror pass changed something
+    # the averaged map of a mirrored frame is the mirrored map, exactly what one pass is not
+    q2, w2 = flip.likelihood(rgb.flip(-1), depth.flip(-1), instructions)
+    torch.testing.assert_close(q2, p2.flip(-1))
+    torch.testing.assert_close(w2, v2)
+    assert not torch.allclose(pm, p.flip(-1))

@@ -42,6 +42,7 @@ class GoalHeadConfig:
     max_depth: float = MAX_DEPTH  # metres; depth is clipped and scaled to [-1, 1]
     category_head: bool = False  # second per-pixel output: "shows the instructed category"
     category_gate: bool = True  # inference: false = the instance output alone (an ablation)
+    test_time_flip: bool = False  # inference: average with the mirrored frame (2 passes)
 
     def __post_init__(self) -> None:
         if not self.channels or min(self.channels) < 1:
@@ -177,9 +178,39 @@ class GoalHead(nn.Module):
         return p
 
     @torch.no_grad()
+    def probabilities(
+        self, rgb: torch.Tensor, depth: torch.Tensor, instructions: Sequence[str]
+    ) -> dict[str, torch.Tensor]:
+        """``pixel`` (B, H, W) goal-instance probability (gated, as S2 uses it), ``visible``
+        (B,) and, with a category output, ``category`` (B, H, W).
+
+        With ``test_time_flip`` each is the mean over the frame and its left-right mirror
+        (the mirrored maps flipped back), at twice the cost.
+        """
+
+        def one_pass(flip: bool) -> dict[str, torch.Tensor]:
+            x, d = (rgb.flip(-1), depth.flip(-1)) if flip else (rgb, depth)  # (B, C, H, W)
+            out = self.forward(x, d, instructions)
+            probs = {
+                "pixel": self.pixel_probability(out),  # (B, H, W)
+                "visible": torch.sigmoid(out["visible_logits"].float()),  # (B,)
+            }
+            if "category_logits" in out:
+                probs["category"] = torch.sigmoid(out["category_logits"].float())  # (B, H, W)
+            if flip:  # back to the frame's own left and right
+                probs = {k: v if v.dim() == 1 else v.flip(-1) for k, v in probs.items()}
+            return probs
+
+        probs = one_pass(flip=False)
+        if self.config.test_time_flip:
+            mirrored = one_pass(flip=True)
+            probs = {k: 0.5 * (v + mirrored[k]) for k, v in probs.items()}
+        return probs
+
     def likelihood(
         self, rgb: torch.Tensor, depth: torch.Tensor, instructions: Sequence[str]
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Probabilities: per pixel (B, H, W) and goal visible per frame (B,)."""
-        out = self.forward(rgb, depth, instructions)
-        return self.pixel_probability(out), torch.sigmoid(out["visible_logits"].float())
+        """Probabilities: per pixel (B, H, W) and goal visible per frame (B,) (see
+        :meth:`probabilities`)."""
+        probs = self.probabilities(rgb, depth, instructions)
+        return probs["pixel"], probs["visible"]
