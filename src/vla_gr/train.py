@@ -35,6 +35,7 @@ from torch.nn.parallel import DistributedDataParallel
 
 from vla_gr import checkpoint as ckpt
 from vla_gr.configs.schema import VLAGRConfig
+from vla_gr.envs.paraphrase import paraphrase_instructions
 from vla_gr.policy import VLAGRPolicy, apply_peft
 from vla_gr.training.closed_loop import best_score, closed_loop_metrics
 from vla_gr.training.data import build_datasets, build_loaders, prepare_store
@@ -90,6 +91,15 @@ def _train(cfg: VLAGRConfig, resolved: DictConfig, dist: DistInfo) -> dict:
 # --------------------------------------------------------------------------- the loop
 
 
+def _augment(batch: dict, paraphrase_prob: float) -> dict:
+    """``batch`` with its instructions rewritten in the training paraphrase vocabulary with
+    ``paraphrase_prob`` each (torch's RNG, restored on resume)."""
+    if paraphrase_prob <= 0.0:
+        return batch
+    instructions = paraphrase_instructions(list(batch["instruction"]), paraphrase_prob)
+    return {**batch, "instruction": instructions}
+
+
 def _loop(run: Run, state: TrainState) -> None:
     """Optimiser steps until ``training.steps``: step, log, validate, checkpoint."""
     t = run.cfg.training
@@ -98,7 +108,7 @@ def _loop(run: Run, state: TrainState) -> None:
     batches = _batches(run, state)
     try:
         while state.step < t.steps:
-            micro = [next(batches) for _ in range(t.grad_accum)]
+            micro = [_augment(next(batches), t.paraphrase_prob) for _ in range(t.grad_accum)]
             t0 = time.perf_counter()
             state.train = train_step(
                 run.train_model,

@@ -54,6 +54,7 @@ def test_seed_overrides_work_verbatim(method):
         ("training.grad_accum=0", "training.grad_accum"),
         ("model.n_action_steps=99", "model.n_action_steps"),
         ("model.head.sampler=ddim", "model.head.sampler"),
+        ("training.paraphrase_prob=1.5", "training.paraphrase_prob"),
     ],
 )
 def test_invalid_values_fail_naming_the_key(override, key):

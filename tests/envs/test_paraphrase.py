@@ -4,10 +4,18 @@ import re
 
 import numpy as np
 import pytest
+import torch
 
 from vla_gr.envs.episodes import sample_episode
 from vla_gr.envs.instructions import TEMPLATES, parse_instruction
-from vla_gr.envs.paraphrase import SYNONYMS, paraphrase, paraphrase_episodes
+from vla_gr.envs.paraphrase import (
+    HELD_OUT,
+    SYNONYMS,
+    TRAINING,
+    paraphrase,
+    paraphrase_episodes,
+    paraphrase_instructions,
+)
 from vla_gr.envs.scene import category_display_name
 
 SPECS = [sample_episode("test", i) for i in range(40)]
@@ -45,3 +53,48 @@ def test_paraphrase_episodes_changes_only_the_instruction_and_replays():
 def test_unknown_category_is_refused():
     with pytest.raises(ValueError, match="names no known category"):
         paraphrase("find the purple zebra", np.random.default_rng(0))
+
+
+def _vocabulary_words(v) -> set[str]:
+    """Every word a vocabulary adds (synonyms, room words, near phrases, shapes' own words)."""
+    text = " ".join(
+        [
+            *(w for ws in v.synonyms.values() for w in ws),
+            *v.room_words.values(),
+            *v.near_words,
+            v.color_subject,
+            *v.room_shapes,
+            *v.plain_shapes,
+        ]  # fmt: skip
+    )
+    return set(re.findall(r"[a-z']+", text.replace("{", " {").replace("}", "} ")))
+
+
+def test_the_training_vocabulary_shares_no_word_with_the_held_out_one():
+    template_words = set(re.findall(r"[a-z']+", " ".join(TEMPLATES).replace("{np}", "")))
+    slots = {"subject", "room", "noun", "color", "in", "is"}  # slots and function words
+    shared = (_vocabulary_words(TRAINING) & _vocabulary_words(HELD_OUT)) - template_words - slots
+    assert not shared, shared
+    assert TRAINING.synonyms.keys() == HELD_OUT.synonyms.keys()
+    rng = np.random.default_rng(0)
+    held_out_words = _vocabulary_words(HELD_OUT) - template_words - slots
+    for spec in SPECS:
+        text = paraphrase(spec.instruction, rng, TRAINING)
+        assert not set(re.findall(r"[a-z']+", text)) & held_out_words, text
+        parts = parse_instruction(spec.instruction)
+        assert any(syn in text for syn in TRAINING.synonyms[parts["category"]]), text
+
+
+def test_training_rewrites_follow_the_probability_and_torchs_seed():
+    texts = [s.instruction for s in SPECS] + ["find the purple zebra"]
+    assert paraphrase_instructions(texts, 0.0) == texts
+    torch.manual_seed(3)
+    a = paraphrase_instructions(texts, 1.0)
+    torch.manual_seed(3)
+    assert paraphrase_instructions(texts, 1.0) == a  # replays from torch's RNG state
+    assert a[-1] == texts[-1]  # no known category: kept
+    assert all(new != old for new, old in zip(a[:-1], texts[:-1]))
+    torch.manual_seed(0)
+    half = paraphrase_instructions(texts[:-1], 0.5)
+    changed = sum(new != old for new, old in zip(half, texts[:-1]))
+    assert 8 <= changed <= 32  # 40 draws at p = 0.5

@@ -73,6 +73,9 @@ class TrainingConfig:
     # init_from may lack entries the model has (a newly added output keeps its fresh
     # initialisation, and the log lists it); extra or mis-shaped entries still fail
     init_allow_missing: bool = False
+    # share of training instructions rewritten in the TRAINING paraphrase vocabulary
+    # (envs/paraphrase.py; disjoint from the held-out set robustness is measured on)
+    paraphrase_prob: float = 0.0
     # Evaluation / checkpointing.
     val_every: int = 200  # optimiser steps between validation losses (0 = never)
     val_batches: int = 8  # batches per validation (per process)
@@ -99,6 +102,8 @@ class TrainingConfig:
         check_positive("training.num_workers", self.num_workers, allow_zero=True)
         for key in ("steps", "batch_size", "grad_accum", "lr", "log_every", "val_batches"):
             check_positive(f"training.{key}", getattr(self, key))
+        if not 0.0 <= self.paraphrase_prob <= 1.0:
+            raise ValueError(f"training.paraphrase_prob={self.paraphrase_prob} must be in [0, 1]")
         if not 0.0 <= self.min_lr_ratio <= 1.0:
             raise ValueError(f"training.min_lr_ratio={self.min_lr_ratio} must be in [0, 1]")
         for key in ("warmup_steps", "weight_decay", "grad_clip", "val_every", "checkpoint_every"):

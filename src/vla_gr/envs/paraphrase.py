@@ -6,42 +6,120 @@ neighbour: :func:`~vla_gr.envs.instructions.parse_instruction`) and says it diff
 find ...". None of these words or sentence shapes occur in
 :data:`~vla_gr.envs.instructions.TEMPLATES`, so an agent evaluated on them meets language it
 was never trained on. :func:`paraphrase_episodes` rewrites a list of episode specs.
+
+Two vocabularies: :data:`HELD_OUT` (what robustness is measured on) and :data:`TRAINING`
+(disjoint words and shapes, for ``training.paraphrase_prob``: the goal head learns that
+unseen wording can name the same object, without seeing the held-out words).
 """
 
 from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
+import torch
 
 from vla_gr.envs.episodes import EpisodeSpec
 from vla_gr.envs.instructions import parse_instruction
 
-__all__ = ["SYNONYMS", "paraphrase", "paraphrase_episodes"]
-
-#: Category -> words for it that the templates never use.
-SYNONYMS: dict[str, tuple[str, ...]] = {
-    "chair": ("seat", "armchair"),
-    "sofa": ("couch", "settee"),
-    "bed": ("bunk", "mattress"),
-    "toilet": ("loo", "lavatory"),
-    "tv_monitor": ("television", "telly"),
-    "plant": ("houseplant", "flowerpot"),
-    "table": ("desk",),
-    "cabinet": ("cupboard", "dresser"),
-}
-_ROOM_WORDS = {"living_room": "lounge", "hallway": "corridor", "office": "study"}
-_NEAR_WORDS = ("right beside", "close to", "next to where you see")
+__all__ = [
+    "HELD_OUT",
+    "SYNONYMS",
+    "TRAINING",
+    "Vocabulary",
+    "paraphrase",
+    "paraphrase_episodes",
+    "paraphrase_instructions",
+]
 
 
-def _room(room: str, rng: np.random.Generator) -> str:
+@dataclass(frozen=True)
+class Vocabulary:
+    """Words and sentence shapes of one paraphrase set.
+
+    ``room_shapes`` / ``plain_shapes`` are format strings with ``{subject}`` (and ``{room}``);
+    ``color_subject`` has ``{noun}`` and ``{color}``.
+    """
+
+    synonyms: dict[str, tuple[str, ...]]  # category -> words for it
+    room_words: dict[str, str]  # room -> another word for it (used half the time)
+    near_words: tuple[str, ...]  # phrasings of "near"
+    color_subject: str
+    room_shapes: tuple[str, ...]
+    plain_shapes: tuple[str, ...]
+
+
+#: The held-out set: what robustness is measured on. Never train on it.
+HELD_OUT = Vocabulary(
+    synonyms={
+        "chair": ("seat", "armchair"),
+        "sofa": ("couch", "settee"),
+        "bed": ("bunk", "mattress"),
+        "toilet": ("loo", "lavatory"),
+        "tv_monitor": ("television", "telly"),
+        "plant": ("houseplant", "flowerpot"),
+        "table": ("desk",),
+        "cabinet": ("cupboard", "dresser"),
+    },
+    room_words={"living_room": "lounge", "hallway": "corridor", "office": "study"},
+    near_words=("right beside", "close to", "next to where you see"),
+    color_subject="the {noun} that is {color}",
+    room_shapes=(
+        "go into the {room} and find {subject}",
+        "in the {room} there is {subject}; bring me there",
+        "head for the {room}, then look for {subject}",
+    ),
+    plain_shapes=(
+        "search the house for {subject}",
+        "where is {subject}? go there",
+        "i need you next to {subject}",
+    ),
+)
+
+#: A second set for training the goal head on unseen wording: no word or shape of
+#: :data:`HELD_OUT` (tests/envs/test_paraphrase.py checks it).
+TRAINING = Vocabulary(
+    synonyms={
+        "chair": ("stool", "recliner"),
+        "sofa": ("loveseat", "sectional"),
+        "bed": ("cot", "daybed"),
+        "toilet": ("wc", "commode"),
+        "tv_monitor": ("screen", "display"),
+        "plant": ("fern", "greenery"),
+        "table": ("worktop", "tabletop"),
+        "cabinet": ("wardrobe", "sideboard"),
+    },
+    room_words={"living_room": "family room", "hallway": "passage", "office": "workroom"},
+    near_words=("alongside", "by", "adjacent to"),
+    color_subject="the {noun} coloured {color}",
+    room_shapes=(
+        "make your way to the {room}; {subject} is the target",
+        "stop by {subject} over in the {room}",
+        "{subject} inside the {room}, please",
+    ),
+    plain_shapes=(
+        "your target: {subject}",
+        "stop by {subject}",
+        "{subject}, please",
+    ),
+)
+
+#: Category -> words for it that the templates never use (the held-out set).
+SYNONYMS: dict[str, tuple[str, ...]] = HELD_OUT.synonyms
+
+
+def _room(room: str, rng: np.random.Generator, vocabulary: Vocabulary) -> str:
     word = room.replace("_", " ")
-    return _ROOM_WORDS.get(room, word) if rng.random() < 0.5 else word
+    return vocabulary.room_words.get(room, word) if rng.random() < 0.5 else word
 
 
-def paraphrase(instruction: str, rng: np.random.Generator) -> str:
-    """A paraphrase of ``instruction`` (a template instruction) that names the same goal.
+def paraphrase(
+    instruction: str, rng: np.random.Generator, vocabulary: Vocabulary = HELD_OUT
+) -> str:
+    """A paraphrase of ``instruction`` (a template instruction) that names the same goal,
+    in the words of ``vocabulary``.
 
     Raises ``ValueError`` when the instruction names no known category.
     """
@@ -49,24 +127,37 @@ def paraphrase(instruction: str, rng: np.random.Generator) -> str:
     category = parts["category"]
     if category is None:
         raise ValueError(f"instruction {instruction!r} names no known category")
-    noun = str(rng.choice(SYNONYMS[category]))
+    words = vocabulary.synonyms
+    noun = str(rng.choice(words[category]))
     color, room, near = parts["color"], parts["room"], parts["near"]
-    subject = f"the {noun} that is {color}" if color else f"the {noun}"
+    subject = vocabulary.color_subject.format(noun=noun, color=color) if color else f"the {noun}"
     if near:
-        subject += f" {rng.choice(_NEAR_WORDS)} the {rng.choice(SYNONYMS[near])}"
+        subject += f" {rng.choice(vocabulary.near_words)} the {rng.choice(words[near])}"
     if room:
-        shapes = (
-            f"go into the {_room(room, rng)} and find {subject}",
-            f"in the {_room(room, rng)} there is {subject}; bring me there",
-            f"head for the {_room(room, rng)}, then look for {subject}",
-        )
+        rooms = [_room(room, rng, vocabulary) for _ in vocabulary.room_shapes]
+        shapes = [s.format(room=r, subject=subject) for s, r in zip(vocabulary.room_shapes, rooms)]
     else:
-        shapes = (
-            f"search the house for {subject}",
-            f"where is {subject}? go there",
-            f"i need you next to {subject}",
-        )
+        shapes = [s.format(subject=subject) for s in vocabulary.plain_shapes]
     return str(rng.choice(shapes))
+
+
+def paraphrase_instructions(
+    instructions: Sequence[str], probability: float, vocabulary: Vocabulary = TRAINING
+) -> list[str]:
+    """Rewrite each instruction with ``probability`` (training augmentation).
+
+    The draws come from torch's global RNG, so a training run that restores it resumes with
+    the same rewrites. An instruction that names no known category is kept as it is.
+    """
+    n = len(instructions)
+    rewrite = (torch.rand(n) < probability).tolist()  # (n,)
+    seeds = torch.randint(0, 2**31 - 1, (n,)).tolist()  # (n,)
+    out = []
+    for text, chosen, seed in zip(instructions, rewrite, seeds):
+        if chosen and parse_instruction(text)["category"] is not None:
+            text = paraphrase(text, np.random.default_rng(seed), vocabulary)
+        out.append(text)
+    return out
 
 
 def paraphrase_episodes(specs: Sequence[EpisodeSpec], seed: int = 0) -> list[EpisodeSpec]:
