@@ -375,4 +375,4 @@ def load_model_state(
             + ". Was it trained with another model.* config?"
         )
     model.load_state_dict(dict(tensors), strict=not allow_missing)
-    return missing if allow_missing else []
+    return missing  # empty unless allow_missing (a strict load raised above)
