@@ -64,6 +64,15 @@ def _groups(channels: int) -> int:
     return g
 
 
+def _mean_with_mirror(v: torch.Tensor) -> torch.Tensor:
+    """(2B, ...) outputs of B frames then their mirrors -> (B, ...) mean, the mirrored maps
+    (B, H, W) flipped back first; per-frame values (B,) are averaged as they are."""
+    own, mirrored = v.chunk(2)  # (B, ...) each
+    if mirrored.dim() > 1:
+        mirrored = mirrored.flip(-1)
+    return 0.5 * (own + mirrored)
+
+
 class _FiLMConv(nn.Module):
     """conv 3x3 (stride s) -> GroupNorm -> FiLM(text) -> SiLU -> conv 3x3 -> GroupNorm -> SiLU."""
 
@@ -185,26 +194,22 @@ class GoalHead(nn.Module):
         (B,) and, with a category output, ``category`` (B, H, W).
 
         With ``test_time_flip`` each is the mean over the frame and its left-right mirror
-        (the mirrored maps flipped back), at twice the cost.
+        (the mirrored maps flipped back); both go through the network as one batch of 2B.
         """
-
-        def one_pass(flip: bool) -> dict[str, torch.Tensor]:
-            x, d = (rgb.flip(-1), depth.flip(-1)) if flip else (rgb, depth)  # (B, C, H, W)
-            out = self.forward(x, d, instructions)
-            probs = {
-                "pixel": self.pixel_probability(out),  # (B, H, W)
-                "visible": torch.sigmoid(out["visible_logits"].float()),  # (B,)
-            }
-            if "category_logits" in out:
-                probs["category"] = torch.sigmoid(out["category_logits"].float())  # (B, H, W)
-            if flip:  # back to the frame's own left and right
-                probs = {k: v if v.dim() == 1 else v.flip(-1) for k, v in probs.items()}
-            return probs
-
-        probs = one_pass(flip=False)
-        if self.config.test_time_flip:
-            mirrored = one_pass(flip=True)
-            probs = {k: 0.5 * (v + mirrored[k]) for k, v in probs.items()}
+        flip = self.config.test_time_flip
+        if flip:
+            rgb = torch.cat([rgb, rgb.flip(-1)])  # (2B, 3, H, W)
+            depth = torch.cat([depth, depth.flip(-1)])  # (2B, 1, H, W)
+            instructions = [*instructions, *instructions]
+        out = self.forward(rgb, depth, instructions)
+        probs = {
+            "pixel": self.pixel_probability(out),  # (B or 2B, H, W)
+            "visible": torch.sigmoid(out["visible_logits"].float()),  # (B or 2B,)
+        }
+        if "category_logits" in out:
+            probs["category"] = torch.sigmoid(out["category_logits"].float())  # (B or 2B, H, W)
+        if flip:  # the mirrored half back to the frame's own left and right, then the mean
+            probs = {k: _mean_with_mirror(v) for k, v in probs.items()}
         return probs
 
     def likelihood(
