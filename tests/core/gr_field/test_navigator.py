@@ -274,3 +274,34 @@ def test_tight_mode_plans_thinner_and_slower_then_restores_the_radius():
     speeds = [tick(nav, pose).max_speed for _ in range(4)]
     assert speeds[:2] == [nav.config.tight_speed] * 2 and speeds[-1] == 1.0
     assert nav.field.config.robot_radius == 0.18
+
+
+def test_a_goal_that_fails_to_verify_is_rejected_and_a_verified_one_stops():
+    near = (ROOM[1] - 0.6, 0.0, 0.0)  # 0.6 m from the wall the likelihood marks
+    like = wall_goal(room_depth(near))
+    nav = make_nav(look_around_angle=0.0, stop_distance=0.8, stop_visible_threshold=0.6,
+                   verify_steps=3)  # fmt: skip
+    tick(nav, near, like, visible=0.2)
+    plan = tick(nav, near, like, visible=0.2)  # confirmed and near, goal pixels in view
+    assert nav.committed and not plan.stop and plan.mode == "verify"  # but p = 0.2 < 0.6
+    for _ in range(2):
+        plan = tick(nav, near, like, visible=0.2)
+        assert plan.mode == "verify"
+    plan = tick(nav, near, like, visible=0.2)  # verify_steps spent: rejected, explore on
+    assert not plan.stop and plan.mode == "explore" and nav.rejections == 1
+    assert nav.goal_votes.max() == 0 and nav.rejected.any()
+    for _ in range(3):  # the rejected cells collect no votes again, even at p = 1
+        plan = tick(nav, near, like, visible=1.0)
+    assert not nav.committed and not plan.stop and nav.goal_votes.max() == 0
+    # the same goal with a verifying head stops on the tick it is confirmed
+    nav = make_nav(look_around_angle=0.0, stop_distance=0.8, stop_visible_threshold=0.6)
+    tick(nav, near, like, visible=0.2)
+    plan = tick(nav, near, like, visible=0.6)
+    assert plan.stop and nav.rejections == 0
+    # off (0): after verify_steps without goal pixels the robot stops anyway, as before
+    nav = make_nav(look_around_angle=0.0, stop_distance=0.8, verify_steps=1)
+    for _ in range(2):
+        tick(nav, near, like, visible=0.0)
+    turned = (near[0], near[1], math.pi)
+    assert tick(nav, turned).mode == "verify"
+    assert tick(nav, turned).stop and nav.rejections == 0

@@ -10,14 +10,19 @@ Modes and transitions (checked in this order every tick)::
     look_around  turn in place until look_around_angle is covered (or a goal is confirmed)
     recover      blocked or stuck: (a virtual obstacle ahead,) back up, turn; then re-plan
     stop         a confirmed goal cell within stop_distance (stop_distance_at_end when the
-                 path ends here), in line of sight, and goal pixels in view now
-    verify       the same but the goal is not in view: turn towards it (verify_steps at most)
+                 path ends here), in line of sight, goal pixels in view now and (with
+                 stop_visible_threshold) the goal head's "goal visible" probability this high
+    verify       the same but not (yet) verified: turn towards it (verify_steps at most); then
+                 stop anyway, or with stop_visible_threshold reject that goal and explore on
     approach     a confirmed goal: follow the field's geodesic to its stand-off
     explore      no confirmed goal: follow the field's geodesic to the frontier
 
 Multi-frame confirmation: a map cell becomes a goal for the field (``GRField.update``'s
 ``goal_gate``) only after goal pixels landed in it on ``confirm_ticks`` different ticks, so a
-single false positive never attracts. Blocked: the plan wanted to drive ahead (its pursuit
+single false positive never attracts. Approach-and-verify: with ``stop_visible_threshold`` a
+STOP also needs the goal head's per-frame "goal visible" probability, seen from close range; a
+goal that never reaches it within ``verify_steps`` is rejected: its cells lose their votes and
+cast none again, and the robot explores on. Blocked: the plan wanted to drive ahead (its pursuit
 point within ``drive_bearing``) on every tick of the last ``blocked_steps`` control steps but
 the robot moved less than ``blocked_distance`` (Stubborn's collision test): a virtual obstacle
 is marked in front (the path then bends around it), the robot backs up and turns. Stuck: less
@@ -66,6 +71,9 @@ class NavigatorConfig:
     # the goal head's per-frame "goal visible" probability below which a tick casts no goal
     # votes (its pixels still feed the field's mean likelihood); 0 = pixels alone decide
     visible_threshold: float = 0.0
+    # approach-and-verify: the "goal visible" probability a STOP needs at the goal; a goal
+    # that does not reach it within verify_steps is rejected (0 = off: goal pixels suffice)
+    stop_visible_threshold: float = 0.0
     confirm_ticks: int = 2  # ticks with goal votes before a cell is a goal
     min_goal_pixels: int = 3  # goal pixels for "the goal is in view now"
     stop_distance: float = 0.8  # m from the robot centre to a confirmed goal cell
@@ -118,10 +126,9 @@ class NavigatorConfig:
         for key in ("turn_rate", "recover_back_speed", "pixel_threshold", "tight_speed"):
             if not 0.0 < getattr(self, key) <= 1.0:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be in (0, 1]")
-        if not 0.0 <= self.visible_threshold <= 1.0:
-            raise ValueError(
-                f"model.navigator.visible_threshold={self.visible_threshold} must be in [0, 1]"
-            )
+        for key in ("visible_threshold", "stop_visible_threshold"):
+            if not 0.0 <= getattr(self, key) <= 1.0:
+                raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be in [0, 1]")
 
 
 @dataclass
@@ -163,6 +170,8 @@ class Navigator:
         shape = self.field.grid.shape
         self.field.reset()
         self.goal_votes = np.zeros(shape, np.int32)  # (H, W) ticks with goal pixels per cell
+        self.rejected = np.zeros(shape, bool)  # (H, W) cells of goals that failed to verify
+        self.rejections = 0
         self.mode = "look_around"
         self.ticks = 0
         self.turned = 0.0
@@ -230,7 +239,7 @@ class Navigator:
         votes = float(self.goal_votes.max()) if self.goal_votes.any() else 0.0
         confidence = min(1.0, votes / cfg.confirm_ticks)
         p = pose[0].numpy().astype(np.float64)  # (3,)
-        plan = self._decide(out, p, robot_xy, visible, distance, nearest, maps)
+        plan = self._decide(out, p, robot_xy, visible, goal_visible, distance, nearest)
         plan.goal_confidence, plan.goal_distance = confidence, distance
         if plan.stop and not self.stop_evidence:
             self.stop_evidence = self._evidence(goal_cells, goal_visible, like, distance)
@@ -240,7 +249,7 @@ class Navigator:
         self.last_latency = time.perf_counter() - t0
         return plan
 
-    def _decide(self, out, pose, robot_xy, visible, distance, nearest, maps) -> NavPlan:
+    def _decide(self, out, pose, robot_xy, visible, goal_visible, distance, nearest) -> NavPlan:
         """The state machine: mode, waypoints / command and STOP for this tick."""
         cfg = self.config
         yaw = float(pose[2])
@@ -262,8 +271,15 @@ class Navigator:
         )
         near = distance <= (cfg.stop_distance_at_end if at_end else cfg.stop_distance)
         if self.committed and near:
-            if visible or self.verify_count >= self.steps_to_ticks(cfg.verify_steps):
+            verified = float(goal_visible) >= cfg.stop_visible_threshold
+            if visible and verified:
                 return NavPlan(np.zeros((0, 2)), "stop", 0.0, True)
+            if self.verify_count >= self.steps_to_ticks(cfg.verify_steps):
+                if cfg.stop_visible_threshold == 0.0:
+                    return NavPlan(np.zeros((0, 2)), "stop", 0.0, True)
+                self._reject_goal(nearest)
+                self.verify_count = 0
+                return self._command_plan("explore", (0.0, cfg.turn_rate))
             self.verify_count += 1
             bearing = math.atan2(nearest[1] - robot_xy[1], nearest[0] - robot_xy[0])
             turn = math.copysign(cfg.turn_rate, wrap_angle(bearing - yaw))
@@ -307,6 +323,19 @@ class Navigator:
 
     # ------------------------------------------------------------------ pieces
 
+    def _reject_goal(self, centre: np.ndarray) -> None:
+        """The confirmed goal whose cell centre (2,) (metres from the grid corner) failed to
+        verify: its connected cells (and their one-cell rim) lose their votes for good."""
+        confirmed = self.goal_votes >= self.config.confirm_ticks  # (H, W)
+        labels, _ = ndimage.label(ndimage.binary_dilation(confirmed), np.ones((3, 3), bool))
+        row, col = (np.asarray(centre) / self.field.config.cell_size).astype(int)[::-1]
+        goal = labels == labels[row, col]  # (H, W) this goal's cells and rim
+        self.rejected |= goal
+        self.goal_votes[goal] = 0
+        self.committed = False
+        self.rejections += 1
+        logger.debug("navigator: goal at cell %s failed to verify, rejected", (row, col))
+
     def _command_plan(self, mode: str, command: tuple[float, float]) -> NavPlan:
         if mode in ("look_around", "recover", "verify"):
             self.positions.clear()
@@ -349,6 +378,7 @@ class Navigator:
         visible = self.tick_goal_pixels >= cfg.min_goal_pixels
         if bool(keep.any()):
             rc = np.unique(cells[keep].numpy(), axis=0)  # (M, 2) distinct cells this tick
+            rc = rc[~self.rejected[rc[:, 0], rc[:, 1]]]  # rejected goals cast no votes
             self.goal_votes[rc[:, 0], rc[:, 1]] += 1
             self.ever_seen_goal = True
         return visible
