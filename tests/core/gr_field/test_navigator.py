@@ -1,9 +1,11 @@
 """Navigator (S2 behaviour) and pure-pursuit follower on synthetic depth and poses."""
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import torch
 
 from vla_gr.core.dual_system.pure_pursuit import (
     PurePursuit,
@@ -305,3 +307,44 @@ def test_a_goal_that_fails_to_verify_is_rejected_and_a_verified_one_stops():
     turned = (near[0], near[1], math.pi)
     assert tick(nav, turned).mode == "verify"
     assert tick(nav, turned).stop and nav.rejections == 0
+
+
+def _dead_end_setup(**overrides):
+    """A navigator committed to a goal cluster it cannot see, and a field output whose path
+    ends at the robot (the last waypoint 0.1 m ahead)."""
+    nav = make_nav(look_around_angle=0.0, **overrides)
+    pose = np.array([0.0, 0.0, 0.0])
+    tick(nav, pose)  # the field has maps
+    nav.goal_votes[40:42, 36:38] = 5  # a confirmed goal ~0.7 m to the robot's left
+    nav.committed, nav.mode = True, "approach"
+    h = nav.field.config.cell_size
+    nearest = np.array([(36 + 0.5) * h, (40 + 0.5) * h])  # (x, y) from the grid corner
+    robot_xy = nav.field.last_maps["robot_xy"][0].numpy()
+
+    def decide(last_waypoint):
+        waypoints = torch.tensor([[[0.05, 0.0]] * 7 + [[last_waypoint, 0.0]]])  # (1, 8, 2)
+        out = SimpleNamespace(
+            has_path=torch.tensor([True]), goal_seen=torch.tensor([True]), waypoints=waypoints
+        )
+        # not within stop distance in line of sight: distance inf
+        return nav._decide(out, pose, robot_xy, True, 1.0, math.inf, nearest)
+
+    return nav, decide
+
+
+def test_a_goal_the_robot_stands_at_the_dead_end_of_is_rejected():
+    nav, decide = _dead_end_setup(dead_end_steps=3)
+    for _ in range(2):
+        plan = decide(last_waypoint=0.1)
+        assert plan.mode == "approach" and nav.rejections == 0
+    plan = decide(last_waypoint=0.1)  # the third tick at the dead end
+    assert plan.mode == "explore" and plan.command == (0.0, nav.config.turn_rate)
+    assert nav.rejections == 1 and nav.goal_votes.max() == 0
+    assert nav.rejected[40:42, 36:38].all() and nav.rejected[38, 36]  # with its rim
+    assert not nav.rejected[20, 20]  # elsewhere the map still takes votes
+    # a path that still leads somewhere, or the rule off: never rejected
+    for overrides, last in (({"dead_end_steps": 3}, 1.5), ({"dead_end_steps": 0}, 0.1)):
+        nav, decide = _dead_end_setup(**overrides)
+        for _ in range(10):
+            assert decide(last_waypoint=last).mode == "approach"
+        assert nav.rejections == 0

@@ -14,7 +14,9 @@ Modes and transitions (checked in this order every tick)::
                  stop_visible_threshold) the goal head's "goal visible" probability this high
     verify       the same but not (yet) verified: turn towards it (verify_steps at most); then
                  stop anyway, or with stop_visible_threshold reject that goal and explore on
-    approach     a confirmed goal: follow the field's geodesic to its stand-off
+    approach     a confirmed goal: follow the field's geodesic to its stand-off; a goal the
+                 robot has stood at the end of the path to for dead_end_steps without being
+                 able to stop (not within stop distance in line of sight) is rejected
     explore      no confirmed goal: follow the field's geodesic to the frontier
 
 Multi-frame confirmation: a map cell becomes a goal for the field (``GRField.update``'s
@@ -22,7 +24,10 @@ Multi-frame confirmation: a map cell becomes a goal for the field (``GRField.upd
 single false positive never attracts. Approach-and-verify: with ``stop_visible_threshold`` a
 STOP also needs the goal head's per-frame "goal visible" probability, seen from close range; a
 goal that never reaches it within ``verify_steps`` is rejected: its cells lose their votes and
-cast none again, and the robot explores on. Blocked: the plan wanted to drive ahead (its pursuit
+cast none again, and the robot explores on. The same happens to a dead end: a goal whose path
+ends where the robot stands but which is not in line of sight within the stop distance (the
+head fired on something behind furniture or a wall), which would otherwise hold the robot
+there until the step budget runs out. Blocked: the plan wanted to drive ahead (its pursuit
 point within ``drive_bearing``) on every tick of the last ``blocked_steps`` control steps but
 the robot moved less than ``blocked_distance`` (Stubborn's collision test): a virtual obstacle
 is marked in front (the path then bends around it), the robot backs up and turns. Stuck: less
@@ -82,6 +87,8 @@ class NavigatorConfig:
     path_end_distance: float = 0.3  # m: the last waypoint this close means the path ends here
     goal_halo_cells: int = 2  # occupied cells this close to goal cells do not block the view
     verify_steps: int = 12  # turning towards the goal before stopping anyway
+    # at the end of the path to a goal it cannot stop at this long: reject the goal (0 = off)
+    dead_end_steps: int = 0
     blocked_steps: int = 15  # window of the blocked test (driving ahead, not moving)
     blocked_distance: float = 0.1  # m
     drive_bearing: float = math.radians(50.0)  # pursuit point within this: the plan drives
@@ -120,7 +127,7 @@ class NavigatorConfig:
                     "blocked_steps", "no_path_steps", "tight_steps"):  # fmt: skip
             if int(getattr(self, key)) < 1:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 1")
-        for key in ("recover_back_steps", "recover_turn_steps"):
+        for key in ("recover_back_steps", "recover_turn_steps", "dead_end_steps"):
             if int(getattr(self, key)) < 0:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 0")
         for key in ("turn_rate", "recover_back_speed", "pixel_threshold", "tight_speed"):
@@ -189,6 +196,7 @@ class Navigator:
         self.unreachable_count = 0
         self.recover_left = 0
         self.verify_count = 0
+        self.dead_end_count = 0
         self.no_path_count = 0
         self.recoveries = 0
         self.committed = False
@@ -285,6 +293,11 @@ class Navigator:
             turn = math.copysign(cfg.turn_rate, wrap_angle(bearing - yaw))
             return self._command_plan("verify", (0.0, turn))
         self.verify_count = 0
+        self.dead_end_count = self.dead_end_count + 1 if self.committed and at_end else 0
+        if cfg.dead_end_steps and self.dead_end_count >= self.steps_to_ticks(cfg.dead_end_steps):
+            self._reject_goal(nearest)
+            self.dead_end_count = 0
+            return self._command_plan("explore", (0.0, cfg.turn_rate))
 
         mode = "approach" if self.committed else "explore"
         self.positions.append(pose[:2].copy())  # progress is judged while driving only
@@ -325,9 +338,10 @@ class Navigator:
 
     def _reject_goal(self, centre: np.ndarray) -> None:
         """The confirmed goal whose cell centre (2,) (metres from the grid corner) failed to
-        verify: its connected cells (and their one-cell rim) lose their votes for good."""
+        verify: its connected cells (and their two-cell rim) lose their votes for good."""
         confirmed = self.goal_votes >= self.config.confirm_ticks  # (H, W)
-        labels, _ = ndimage.label(ndimage.binary_dilation(confirmed), np.ones((3, 3), bool))
+        grown = ndimage.binary_dilation(confirmed, iterations=2)  # (H, W) with a 2-cell rim
+        labels, _ = ndimage.label(grown, np.ones((3, 3), bool))
         row, col = (np.asarray(centre) / self.field.config.cell_size).astype(int)[::-1]
         goal = labels == labels[row, col]  # (H, W) this goal's cells and rim
         self.rejected |= goal
