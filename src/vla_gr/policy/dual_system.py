@@ -97,12 +97,13 @@ class GroundedDualSystem:
 
     def episode_summary(self) -> dict:
         """What S2 concluded this episode: the highest goal confidence, the last mode, the
-        goals it rejected at verification and the evidence behind its STOP request ({} without
-        one)."""
+        goals it rejected (verification, dead ends, traps), the times it was trapped and the
+        evidence behind its STOP request ({} without one)."""
         return {
             "goal_confidence": round(float(self.max_goal_confidence), 4),
             "last_mode": None if self.plan is None else self.plan.mode,
             "rejected_goals": int(self.navigator.rejections),
+            "traps": int(self.navigator.traps),
             "stop_evidence": dict(self.navigator.stop_evidence),
         }
 

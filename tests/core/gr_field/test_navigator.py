@@ -14,6 +14,7 @@ from vla_gr.core.dual_system.pure_pursuit import (
     pursuit_action,
 )
 from vla_gr.core.gr_field import GRFieldConfig
+from vla_gr.core.gr_field.mapping import OCC_HITS
 from vla_gr.core.gr_field.navigator import Navigator, NavigatorConfig, NavPlan
 from vla_gr.geometry.camera import box_room_depth, intrinsics_from_hfov
 from vla_gr.geometry.pose2d import lookahead_target
@@ -348,3 +349,26 @@ def test_a_goal_the_robot_stands_at_the_dead_end_of_is_rejected():
         for _ in range(10):
             assert decide(last_waypoint=last).mode == "approach"
         assert nav.rejections == 0
+
+
+def test_a_robot_trapped_in_one_spot_closes_the_way_ahead_or_rejects_its_goal():
+    nav = make_nav(look_around_angle=0.0, trap_recoveries=3, trap_radius=0.5)
+    pose = np.array([0.0, 0.0, 0.0])
+    tick(nav, pose)
+    occ = nav.field.map_state[0, OCC_HITS]  # (H, W)
+    ahead = tuple(nav._disk_cells(np.array([0.55, 0.0]), 0.01)[0].tolist())  # (row, col)
+    nav._start_recovery(np.array([1.5, 0.0, 0.0]), mark=False)  # elsewhere: not this spot
+    for k in range(2):
+        nav._start_recovery(pose + [0.1 * k, 0.0, 0.0], mark=True)
+    assert nav.traps == 0 and occ[ahead] == 0
+    nav._start_recovery(pose, mark=True)  # the third within 0.5 m
+    assert nav.traps == 1 and occ[ahead] >= nav.config.virtual_obstacle_hits
+    nav.clear_virtual_obstacles()  # no path: virtual obstacles go, the lasting one stays
+    assert occ[ahead] >= nav.config.virtual_obstacle_hits
+    # committed to a goal: the goal is rejected instead
+    nav, decide = _dead_end_setup(trap_recoveries=2)
+    h = nav.field.config.cell_size
+    nearest = np.array([(36 + 0.5) * h, (40 + 0.5) * h])
+    for _ in range(2):
+        nav._start_recovery(np.zeros(3), mark=False, nearest=nearest)
+    assert nav.traps == 1 and nav.rejections == 1 and nav.goal_votes.max() == 0

@@ -34,7 +34,10 @@ is marked in front (the path then bends around it), the robot backs up and turns
 than ``stuck_distance`` over ``stuck_steps`` in explore/approach: back up and turn. No path
 for ``no_path_steps``: the virtual obstacles are forgotten (they may close a door); if there
 are none, the field plans for a thinner robot (``tight_radius``, at ``tight_speed``) for
-``tight_steps``; after that, back up and turn.
+``tight_steps``; after that, back up and turn. Trapped (``trap_recoveries`` recoveries within
+``trap_radius`` of one another: planning thinner and forgetting virtual obstacles keep sending
+the robot into the same gap): a committed goal is rejected; while exploring, the way ahead is
+closed for good by an obstacle that is never forgotten.
 
 Map hygiene, every tick: unseen cells within ``visited_clear_radius`` of the robot count as
 seen (frontiers in the camera's blind spots stop pulling the robot back and forth), and
@@ -102,6 +105,11 @@ class NavigatorConfig:
     virtual_obstacle_radius: float = 0.08  # m
     virtual_obstacle_hits: float = 100.0  # evidence count (outvotes later free evidence)
     no_path_steps: int = 8  # without a path before a recovery
+    # recoveries within trap_radius of one another before the robot gives up what it heads
+    # for: a committed goal is rejected, else the way ahead is closed for good (0 = off)
+    trap_recoveries: int = 0
+    trap_radius: float = 0.5  # m
+    trap_obstacle_radius: float = 0.25  # m, the lasting obstacle ahead of a trapped robot
     # no path even without virtual obstacles: plan for a thinner robot for a while (passages
     # the conservative inflation closes on a coarse map; the depth check still guards)
     tight_radius: float = 0.05  # m
@@ -120,14 +128,16 @@ class NavigatorConfig:
         for key in ("look_around_angle", "stop_distance", "stuck_distance", "blocked_distance",
                     "stop_distance_at_end", "path_end_distance",
                     "virtual_obstacle_radius", "virtual_obstacle_hits",
-                    "visited_clear_radius", "tight_radius"):  # fmt: skip
+                    "visited_clear_radius", "tight_radius", "trap_radius",
+                    "trap_obstacle_radius"):  # fmt: skip
             if not getattr(self, key) >= 0:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 0")
         for key in ("confirm_ticks", "min_goal_pixels", "verify_steps", "stuck_steps",
                     "blocked_steps", "no_path_steps", "tight_steps"):  # fmt: skip
             if int(getattr(self, key)) < 1:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 1")
-        for key in ("recover_back_steps", "recover_turn_steps", "dead_end_steps"):
+        for key in ("recover_back_steps", "recover_turn_steps", "dead_end_steps",
+                    "trap_recoveries"):  # fmt: skip
             if int(getattr(self, key)) < 0:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 0")
         for key in ("turn_rate", "recover_back_speed", "pixel_threshold", "tight_speed"):
@@ -199,6 +209,8 @@ class Navigator:
         self.dead_end_count = 0
         self.no_path_count = 0
         self.recoveries = 0
+        self.recovery_spots: list[np.ndarray] = []  # (2,) where recent recoveries started
+        self.traps = 0
         self.committed = False
         self.ever_seen_goal = False
         self.tick_goal_pixels = 0  # goal pixels of this tick that landed on the map
@@ -302,9 +314,9 @@ class Navigator:
         mode = "approach" if self.committed else "explore"
         self.positions.append(pose[:2].copy())  # progress is judged while driving only
         if self._blocked():
-            return self._start_recovery(pose, mark=True)
+            return self._start_recovery(pose, mark=True, nearest=nearest)
         if self._stuck():
-            return self._start_recovery(pose, mark=False)
+            return self._start_recovery(pose, mark=False, nearest=nearest)
         if not bool(out.has_path[0]):
             self.drives.append((pose[:2].copy(), False))
             self.no_path_count += 1
@@ -315,7 +327,7 @@ class Navigator:
                 elif self.tight_left == 0 and cfg.tight_radius < self._radius:
                     self._start_tight()
                 else:
-                    return self._start_recovery(pose, mark=False)
+                    return self._start_recovery(pose, mark=False, nearest=nearest)
             return self._command_plan(mode, (0.0, cfg.turn_rate))
         self.no_path_count = 0
         # a confirmed goal the field cannot reach (it falls back to the frontier): the goal's
@@ -447,10 +459,18 @@ class Navigator:
         pts = np.stack([xy for xy, _ in self.drives])  # (T, 2)
         return bool(np.linalg.norm(pts - pts[-1], axis=-1).max() < cfg.blocked_distance)
 
-    def _start_recovery(self, pose: np.ndarray, mark: bool) -> NavPlan:
-        """(Mark a virtual obstacle ahead,) then back up and turn (Stubborn's untrap)."""
+    def _start_recovery(self, pose: np.ndarray, mark: bool, nearest=None) -> NavPlan:
+        """(Mark a virtual obstacle ahead,) then back up and turn (Stubborn's untrap); when
+        trapped, first give up what the robot heads for (see module docstring)."""
         cfg = self.config
         self.recoveries += 1
+        if cfg.trap_recoveries:
+            self.recovery_spots.append(pose[:2].copy())
+            spots = np.stack(self.recovery_spots)  # (R, 2)
+            if (np.linalg.norm(spots - pose[:2], axis=-1) <= cfg.trap_radius).sum() >= (
+                cfg.trap_recoveries
+            ):
+                self._give_up(pose, nearest)
         self.positions.clear()
         self.drives.clear()
         if mark:
@@ -468,6 +488,20 @@ class Navigator:
         command = (-cfg.recover_back_speed, 0.0) if backing else (0.0, cfg.turn_rate)
         return self._command_plan("recover", command)
 
+    def _give_up(self, pose: np.ndarray, nearest) -> None:
+        """Trapped: reject the committed goal (``nearest`` (2,), its cell centre from the grid
+        corner), or while exploring close the way ahead for good."""
+        self.traps += 1
+        self.recovery_spots.clear()
+        if self.committed and nearest is not None:
+            self._reject_goal(nearest)
+            return
+        cfg = self.config
+        heading = np.array([math.cos(pose[2]), math.sin(pose[2])])
+        ahead = cfg.virtual_obstacle_distance + cfg.trap_obstacle_radius
+        self.mark_obstacle(pose[:2] + ahead * heading, cfg.trap_obstacle_radius, lasting=True)
+        logger.debug("navigator: trapped at %s, the way ahead is closed", pose)
+
     def _disk_cells(self, xy: np.ndarray, radius: float) -> torch.Tensor:
         """Cells (D, 2) as (row, col) within ``radius`` of map-frame point ``xy`` (2,)."""
         h = self.field.grid.cell_size
@@ -479,15 +513,17 @@ class Navigator:
         cells, inside = points_to_cells(pts, self.field.grid)  # (D, 2), (D,)
         return cells[inside]
 
-    def mark_obstacle(self, xy: np.ndarray, radius: float) -> None:
-        """Add obstacle evidence to the cells within ``radius`` of map-frame point ``xy`` (2,)."""
+    def mark_obstacle(self, xy: np.ndarray, radius: float, lasting: bool = False) -> None:
+        """Add obstacle evidence to the cells within ``radius`` of map-frame point ``xy`` (2,);
+        a virtual obstacle is forgotten when no path is left, a ``lasting`` one never."""
         cells = self._disk_cells(xy, radius)  # (D, 2)
         if self.field.map_state.shape[0] == 0 or len(cells) == 0:
             return
         self.field.map_state[0, OCC_HITS, cells[:, 0], cells[:, 1]] += (
             self.config.virtual_obstacle_hits
         )
-        self.virtual.append(cells)
+        if not lasting:
+            self.virtual.append(cells)
 
     def clear_virtual_obstacles(self) -> None:
         """Take back the evidence of every virtual obstacle (seen obstacles stay)."""
