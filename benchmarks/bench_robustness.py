@@ -14,8 +14,9 @@ Runs ``vla-gr eval`` (the ``config_cpu`` recipe) once per condition on episodes
 - ``actuation_noise``: ``env.actuation_noise=0.1`` (+-10% on v and w, per step).
 
 Prints SR / SPL / collision rate per condition and the SR difference to ``clean``, writes
-``benchmarks/results/bench_robustness_<agent>_<split>.{json,md}`` (conditions run earlier on the
-same agent and episodes are kept, so ``--conditions`` may be run one at a time); each run
+``benchmarks/results/bench_robustness_<name>_<split>.{json,md}`` (``--name``, default the agent:
+give each checkpoint its own; conditions run earlier on the same agent and episodes are kept,
+so ``--conditions`` may be run one at a time); each run
 folder is kept under ``--output`` (default ``outputs/robustness``).
 """
 
@@ -89,6 +90,9 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--conditions", default=",".join(CONDITIONS))
     parser.add_argument("--output", default="outputs/robustness")
+    parser.add_argument(
+        "--name", help="the results file's agent part (default: --agent); one per checkpoint"
+    )
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)
     rows, t0 = {}, time.perf_counter()
@@ -106,7 +110,7 @@ def main() -> None:
         }
         print(f"{name}: SR {rows[name]['SR']:.3f} SPL {rows[name]['SPL']:.3f}", flush=True)
     RESULTS.mkdir(exist_ok=True)
-    stem = RESULTS / f"bench_robustness_{args.agent}_{args.split}"
+    stem = RESULTS / f"bench_robustness_{args.name or args.agent}_{args.split}"
     key = [args.agent, args.checkpoint, args.split, args.first, args.episodes]
     if stem.with_suffix(".json").is_file():  # conditions of an earlier run on the same episodes
         old = json.loads(stem.with_suffix(".json").read_text())
@@ -117,7 +121,7 @@ def main() -> None:
     command = (
         f"python benchmarks/bench_robustness.py --agent {args.agent} --checkpoint "
         f"{args.checkpoint} --split {args.split} --first {args.first} --episodes "
-        f"{args.episodes} --workers {args.workers}"
+        f"{args.episodes} --workers {args.workers}" + (f" --name {args.name}" if args.name else "")
     )
     lines = [
         f"# Robustness: {args.agent} on {args.split} {args.first}-{args.first + args.episodes - 1}",
