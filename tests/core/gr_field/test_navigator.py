@@ -372,3 +372,12 @@ def test_a_robot_trapped_in_one_spot_closes_the_way_ahead_or_rejects_its_goal():
     for _ in range(2):
         nav._start_recovery(np.zeros(3), mark=False, nearest=nearest)
     assert nav.traps == 1 and nav.rejections == 1 and nav.goal_votes.max() == 0
+
+
+def test_rejecting_at_a_cell_outside_any_confirmed_goal_rejects_only_its_neighbourhood():
+    nav, _ = _dead_end_setup()
+    h = nav.field.config.cell_size
+    nav.goal_votes[10, 10] = 1  # a vote elsewhere, below confirm_ticks
+    nav._reject_goal(np.array([(20 + 0.5) * h, (20 + 0.5) * h]))  # cell (20, 20): no goal
+    assert nav.rejected.sum() == 25 and nav.rejected[18:23, 18:23].all()
+    assert nav.goal_votes[40:42, 36:38].min() == 5 and nav.goal_votes[10, 10] == 1

@@ -187,7 +187,7 @@ class Navigator:
         shape = self.field.grid.shape
         self.field.reset()
         self.goal_votes = np.zeros(shape, np.int32)  # (H, W) ticks with goal pixels per cell
-        self.rejected = np.zeros(shape, bool)  # (H, W) cells of goals that failed to verify
+        self.rejected = np.zeros(shape, bool)  # (H, W) cells of rejected goals (cast no votes)
         self.rejections = 0
         self.mode = "look_around"
         self.ticks = 0
@@ -349,18 +349,22 @@ class Navigator:
     # ------------------------------------------------------------------ pieces
 
     def _reject_goal(self, centre: np.ndarray) -> None:
-        """The confirmed goal whose cell centre (2,) (metres from the grid corner) failed to
-        verify: its connected cells (and their two-cell rim) lose their votes for good."""
+        """Give up the confirmed goal with a cell centred at ``centre`` (2,) (metres from the
+        grid corner): its connected cells and their two-cell rim lose their votes for good."""
         confirmed = self.goal_votes >= self.config.confirm_ticks  # (H, W)
         grown = ndimage.binary_dilation(confirmed, iterations=2)  # (H, W) with a 2-cell rim
         labels, _ = ndimage.label(grown, np.ones((3, 3), bool))
         row, col = (np.asarray(centre) / self.field.config.cell_size).astype(int)[::-1]
-        goal = labels == labels[row, col]  # (H, W) this goal's cells and rim
+        if labels[row, col]:
+            goal = labels == labels[row, col]  # (H, W) this goal's cells and rim
+        else:  # not (or no longer) a confirmed cell: its neighbourhood only
+            goal = np.zeros_like(confirmed)
+            goal[max(row - 2, 0) : row + 3, max(col - 2, 0) : col + 3] = True
         self.rejected |= goal
         self.goal_votes[goal] = 0
         self.committed = False
         self.rejections += 1
-        logger.debug("navigator: goal at cell %s failed to verify, rejected", (row, col))
+        logger.debug("navigator: goal at cell %s rejected", (row, col))
 
     def _command_plan(self, mode: str, command: tuple[float, float]) -> NavPlan:
         if mode in ("look_around", "recover", "verify"):
