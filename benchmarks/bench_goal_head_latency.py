@@ -25,6 +25,7 @@ import logging
 import os
 import platform
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -58,17 +59,24 @@ def recorded_frames(count: int, split: str) -> list[dict]:
     return frames[:count]
 
 
+@contextmanager
+def flip_set(head, on: bool):
+    """``head`` with ``test_time_flip`` set to ``on`` inside the block, as it was after."""
+    saved = head.config
+    head.config = dataclasses.replace(saved, test_time_flip=on)
+    try:
+        yield head
+    finally:
+        head.config = saved
+
+
 def two_passes(head, frame: dict) -> dict[str, torch.Tensor]:
     """The flip as two forwards of batch 1 (the mirror's maps flipped back, then the mean)."""
-    plain = dataclasses.replace(head.config, test_time_flip=False)
-    saved, head.config = head.config, plain
-    try:
+    with flip_set(head, False):
         own = head.probabilities(frame["rgb"], frame["depth"], frame["instruction"])
         mirrored = head.probabilities(
             frame["rgb"].flip(-1), frame["depth"].flip(-1), frame["instruction"]
         )
-    finally:
-        head.config = saved
     return {k: 0.5 * (v + (mirrored[k].flip(-1) if v.dim() > 1 else mirrored[k]))
             for k, v in own.items()}  # fmt: skip
 
@@ -78,12 +86,8 @@ def one_call(head, variant: str, frame: dict) -> None:
     if variant == "flip_two_passes":
         two_passes(head, frame)
         return
-    saved = head.config
-    head.config = dataclasses.replace(saved, test_time_flip=variant == "flip_batched")
-    try:
+    with flip_set(head, variant == "flip_batched"):
         head.probabilities(frame["rgb"], frame["depth"], frame["instruction"])
-    finally:
-        head.config = saved
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -100,10 +104,9 @@ def main(argv: list[str] | None = None) -> dict:
     head = VLAGRPolicy.from_pretrained(args.checkpoint).goal_head.eval()
     frames = recorded_frames(args.calls, args.split)
     with torch.no_grad():
-        flip = head.config.test_time_flip
-        head.config = dataclasses.replace(head.config, test_time_flip=True)
-        batched = head.probabilities(frames[0]["rgb"], frames[0]["depth"], frames[0]["instruction"])
-        head.config = dataclasses.replace(head.config, test_time_flip=flip)
+        with flip_set(head, True):
+            frame = frames[0]
+            batched = head.probabilities(frame["rgb"], frame["depth"], frame["instruction"])
         reference = two_passes(head, frames[0])
         for key, value in reference.items():  # the two ways compute the same maps
             torch.testing.assert_close(batched[key], value, rtol=1e-4, atol=1e-5)
