@@ -297,9 +297,7 @@ class Navigator:
             if self.verify_count >= self.steps_to_ticks(cfg.verify_steps):
                 if cfg.stop_visible_threshold == 0.0:
                     return NavPlan(np.zeros((0, 2)), "stop", 0.0, True)
-                self._reject_goal(nearest)
-                self.verify_count = 0
-                return self._command_plan("explore", (0.0, cfg.turn_rate))
+                return self._abandon_goal(nearest)
             self.verify_count += 1
             bearing = math.atan2(nearest[1] - robot_xy[1], nearest[0] - robot_xy[0])
             turn = math.copysign(cfg.turn_rate, wrap_angle(bearing - yaw))
@@ -307,9 +305,7 @@ class Navigator:
         self.verify_count = 0
         self.dead_end_count = self.dead_end_count + 1 if self.committed and at_end else 0
         if cfg.dead_end_steps and self.dead_end_count >= self.steps_to_ticks(cfg.dead_end_steps):
-            self._reject_goal(nearest)
-            self.dead_end_count = 0
-            return self._command_plan("explore", (0.0, cfg.turn_rate))
+            return self._abandon_goal(nearest)
 
         mode = "approach" if self.committed else "explore"
         self.positions.append(pose[:2].copy())  # progress is judged while driving only
@@ -365,6 +361,14 @@ class Navigator:
         self.committed = False
         self.rejections += 1
         logger.debug("navigator: goal at cell %s rejected", (row, col))
+
+    def _abandon_goal(self, nearest: np.ndarray) -> NavPlan:
+        """Reject the committed goal nearest ``nearest`` (2,), reset the counters that led
+        here (verification, dead end) and turn in place to explore on."""
+        self._reject_goal(nearest)
+        self.verify_count = 0
+        self.dead_end_count = 0
+        return self._command_plan("explore", (0.0, self.config.turn_rate))
 
     def _command_plan(self, mode: str, command: tuple[float, float]) -> NavPlan:
         if mode in ("look_around", "recover", "verify"):
