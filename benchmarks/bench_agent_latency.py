@@ -8,8 +8,11 @@ Runs the checkpoint (and each ``--variant name=override[,override...]`` of it) o
 ms of: ``decision`` (one ``select_action``, everything the agent does per control step),
 ``s1`` (S1's share of a step: a chunk action from the queue or a new S1 decision),
 ``s1_network`` (the learned S1's forward + sampling, on the steps it runs) and ``s2`` (one
-planner tick: goal head + GR-field navigator). Writes ``<out>.json`` and ``<out>.md``. Run it
-on a quiet machine: a benchmark taken beside another job is noise.
+planner tick), split into ``s2_perception`` (the goal head) and ``s2_navigator`` (the GR-field
+navigator), and the navigator's GR-field update into its stages (``field.mapping``,
+``field.poisson``, ``field.fast_marching``, ...: ``GRField.last_timings``). Writes
+``<out>.json`` and ``<out>.md``. Run it on a quiet machine: a benchmark taken beside another
+job is noise.
 """
 
 from __future__ import annotations
@@ -34,7 +37,8 @@ logger = logging.getLogger("bench_agent_latency")
 
 ROOT = Path(__file__).resolve().parent
 DEFAULT_OUT = ROOT / "results" / "bench_agent_latency"
-PARTS = ("decision", "s1", "s1_network", "s2")
+PARTS = ("decision", "s1", "s1_network", "s2", "s2_perception", "s2_navigator")
+FIELD_STAGES = ("mapping", "masses", "poisson", "metric", "fast_marching", "path", "features")
 
 
 def timed_s1(policy: VLAGRPolicy, sink: list[float]) -> None:
@@ -50,11 +54,28 @@ def timed_s1(policy: VLAGRPolicy, sink: list[float]) -> None:
     policy.s1.act = wrapper
 
 
+def timed_field(policy: VLAGRPolicy, sink: dict[str, list[float]]) -> None:
+    """After every navigator tick of ``policy``, append its GR-field update's stage times (ms)
+    to ``sink["field.<stage>"]``."""
+    navigator = policy.dual_system.navigator
+    plan = navigator.plan
+
+    def wrapper(*args, **kwargs):
+        out = plan(*args, **kwargs)
+        for stage, seconds in navigator.field.last_timings.items():
+            sink.setdefault(f"field.{stage}", []).append(seconds * 1e3)
+        return out
+
+    navigator.plan = wrapper
+
+
 def measure(checkpoint: str, overrides: list[str], env_kwargs: dict, episodes: int) -> dict:
     """Per-part latency quantiles (ms) and the success of each episode, for one variant."""
     policy = VLAGRPolicy.from_pretrained(checkpoint, overrides=overrides)
     network: list[float] = []
     timed_s1(policy, network)
+    field: dict[str, list[float]] = {}
+    timed_field(policy, field)
     env = make_env(env_kwargs)
     samples: dict[str, list[float]] = {p: [] for p in PARTS}
     successes = []
@@ -67,6 +88,7 @@ def measure(checkpoint: str, overrides: list[str], env_kwargs: dict, episodes: i
     finally:
         env.close()
     samples["s1_network"] = network
+    samples.update(field)
     result = {"success": float(np.mean(successes)), "episodes": episodes}
     for part, values in samples.items():
         if values:
@@ -83,7 +105,7 @@ def table(results: dict) -> str:
         "|---|---|---|---|---|---|---|---|",
     ]
     for name, r in results.items():
-        for part in PARTS:
+        for part in (*PARTS, *(f"field.{stage}" for stage in FIELD_STAGES)):
             if part in r:
                 q = r[part]
                 lines.append(

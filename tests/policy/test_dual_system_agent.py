@@ -113,9 +113,15 @@ def test_s2_runs_every_plan_every_steps_and_s1_every_step():
     for t in range(8):
         action = model.select_action(_obs())
         assert action.shape == (1, 3) and action.abs().max() <= 1.0
-        assert "s1" in model.last_timings
-        if "s2" in model.last_timings:
+        timings = model.last_timings
+        assert "s1" in timings
+        if "s2" in timings:
             s2_steps.append(t)
+            # the tick's two parts: perception then the navigator, inside the tick's time
+            parts = timings["s2_perception"] + timings["s2_navigator"]
+            assert 0 < parts <= timings["s2"]
+        else:
+            assert "s2_perception" not in timings and "s2_navigator" not in timings
     assert s2_steps == [0, 3, 6] and len(ticks) == 3
     model.reset()  # a new episode plans at once
     model.select_action(_obs())

@@ -63,8 +63,10 @@ class GroundedDualSystem:
         self.navigator = Navigator(navigator, field, plan_every=plan_every)
         self.follower = PurePursuit(pursuit) if s1 is None else LearnedFollower(s1)
         self.plan_every = self.navigator.plan_every
-        #: seconds of the last step's parts: ``s1`` always, ``s2`` on planner ticks
+        #: seconds of the last step's parts: ``s1`` always; on planner ticks ``s2`` and its two
+        #: parts, ``s2_perception`` (the goal likelihood) and ``s2_navigator`` (GR field + rules)
         self.last_timings: dict[str, float] = {}
+        self.s2_parts: dict[str, float] = {}
         self.reset()
 
     @classmethod
@@ -116,6 +118,7 @@ class GroundedDualSystem:
         depth = np.asarray(obs["depth"], dtype=np.float32)  # (H, W, 1)
         pose = np.asarray(obs["pose"], dtype=np.float64).reshape(3)  # (3,)
         perceived = self.goal_likelihood(obs)
+        t_perceived = time.perf_counter()
         likelihood, visible = perceived if isinstance(perceived, tuple) else (perceived, 1.0)
         likelihood = np.asarray(likelihood, dtype=np.float32)  # (H, W)
         if likelihood.shape != depth.shape[:2]:
@@ -126,12 +129,14 @@ class GroundedDualSystem:
         self.follower.set_plan(self.plan, pose)
         self.last_likelihood = likelihood
         self.max_goal_confidence = max(self.max_goal_confidence, self.plan.goal_confidence)
-        return time.perf_counter() - t0
+        t1 = time.perf_counter()
+        self.s2_parts = {"s2_perception": t_perceived - t0, "s2_navigator": t1 - t_perceived}
+        return t1 - t0
 
     def step(self, obs: Mapping) -> np.ndarray:
         """One control step on a single env observation -> action float32 (3,) (v, w, stop)."""
         s2_seconds = self.plan_if_due(obs)
-        timings = {} if s2_seconds is None else {"s2": s2_seconds}
+        timings = {} if s2_seconds is None else {"s2": s2_seconds, **self.s2_parts}
         t1 = time.perf_counter()
         depth = np.asarray(obs["depth"], dtype=np.float32)  # (H, W, 1)
         pose = np.asarray(obs["pose"], dtype=np.float64).reshape(3)  # (3,)
