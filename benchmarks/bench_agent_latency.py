@@ -38,7 +38,6 @@ logger = logging.getLogger("bench_agent_latency")
 ROOT = Path(__file__).resolve().parent
 DEFAULT_OUT = ROOT / "results" / "bench_agent_latency"
 PARTS = ("decision", "s1", "s1_network", "s2", "s2_perception", "s2_navigator")
-FIELD_STAGES = ("mapping", "masses", "poisson", "metric", "fast_marching", "path", "features")
 
 
 def timed_s1(policy: VLAGRPolicy, sink: list[float]) -> None:
@@ -105,7 +104,8 @@ def table(results: dict) -> str:
         "|---|---|---|---|---|---|---|---|",
     ]
     for name, r in results.items():
-        for part in (*PARTS, *(f"field.{stage}" for stage in FIELD_STAGES)):
+        stages = [key for key in r if key.startswith("field.")]  # in GRField's own order
+        for part in (*PARTS, *stages):
             if part in r:
                 q = r[part]
                 lines.append(

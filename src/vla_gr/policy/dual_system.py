@@ -66,7 +66,6 @@ class GroundedDualSystem:
         #: seconds of the last step's parts: ``s1`` always; on planner ticks ``s2`` and its two
         #: parts, ``s2_perception`` (the goal likelihood) and ``s2_navigator`` (GR field + rules)
         self.last_timings: dict[str, float] = {}
-        self.s2_parts: dict[str, float] = {}
         self.reset()
 
     @classmethod
@@ -109,9 +108,10 @@ class GroundedDualSystem:
             "stop_evidence": dict(self.navigator.stop_evidence),
         }
 
-    def plan_if_due(self, obs: Mapping) -> float | None:
+    def plan_if_due(self, obs: Mapping) -> dict[str, float] | None:
         """S2's part of a control step: on a planner tick, the goal likelihood and a new plan
-        (handed to the follower). Returns the tick's seconds, or None between ticks."""
+        (handed to the follower). Returns the tick's seconds (``s2``, ``s2_perception``,
+        ``s2_navigator``), or None between ticks."""
         if self.steps % self.plan_every:
             return None
         t0 = time.perf_counter()
@@ -130,13 +130,11 @@ class GroundedDualSystem:
         self.last_likelihood = likelihood
         self.max_goal_confidence = max(self.max_goal_confidence, self.plan.goal_confidence)
         t1 = time.perf_counter()
-        self.s2_parts = {"s2_perception": t_perceived - t0, "s2_navigator": t1 - t_perceived}
-        return t1 - t0
+        return {"s2": t1 - t0, "s2_perception": t_perceived - t0, "s2_navigator": t1 - t_perceived}
 
     def step(self, obs: Mapping) -> np.ndarray:
         """One control step on a single env observation -> action float32 (3,) (v, w, stop)."""
-        s2_seconds = self.plan_if_due(obs)
-        timings = {} if s2_seconds is None else {"s2": s2_seconds, **self.s2_parts}
+        timings = self.plan_if_due(obs) or {}
         t1 = time.perf_counter()
         depth = np.asarray(obs["depth"], dtype=np.float32)  # (H, W, 1)
         pose = np.asarray(obs["pose"], dtype=np.float64).reshape(3)  # (3,)
