@@ -35,8 +35,8 @@ from torch.nn.parallel import DistributedDataParallel
 
 from vla_gr import checkpoint as ckpt
 from vla_gr.configs.schema import VLAGRConfig
-from vla_gr.envs.paraphrase import paraphrase_instructions
 from vla_gr.policy import VLAGRPolicy, apply_peft
+from vla_gr.training.augment import augment_batch
 from vla_gr.training.closed_loop import best_score, closed_loop_metrics
 from vla_gr.training.data import build_datasets, build_loaders, prepare_store
 from vla_gr.training.distributed import (
@@ -91,15 +91,6 @@ def _train(cfg: VLAGRConfig, resolved: DictConfig, dist: DistInfo) -> dict:
 # --------------------------------------------------------------------------- the loop
 
 
-def _augment(batch: dict, paraphrase_prob: float) -> dict:
-    """``batch`` with its instructions rewritten in the training paraphrase vocabulary with
-    ``paraphrase_prob`` each (torch's RNG, restored on resume)."""
-    if paraphrase_prob <= 0.0:
-        return batch
-    instructions = paraphrase_instructions(list(batch["instruction"]), paraphrase_prob)
-    return {**batch, "instruction": instructions}
-
-
 def _loop(run: Run, state: TrainState) -> None:
     """Optimiser steps until ``training.steps``: step, log, validate, checkpoint."""
     t = run.cfg.training
@@ -108,7 +99,10 @@ def _loop(run: Run, state: TrainState) -> None:
     batches = _batches(run, state)
     try:
         while state.step < t.steps:
-            micro = [_augment(next(batches), t.paraphrase_prob) for _ in range(t.grad_accum)]
+            micro = [
+                augment_batch(next(batches), t.paraphrase_prob, t.flip_prob)
+                for _ in range(t.grad_accum)
+            ]
             t0 = time.perf_counter()
             state.train = train_step(
                 run.train_model,

@@ -55,6 +55,8 @@ def test_seed_overrides_work_verbatim(method):
         ("model.n_action_steps=99", "model.n_action_steps"),
         ("model.head.sampler=ddim", "model.head.sampler"),
         ("training.paraphrase_prob=1.5", "training.paraphrase_prob"),
+        ("training.flip_prob=1.5", "training.flip_prob"),
+        ("training.flip_prob=0.5", "training.flip_prob"),  # an end-to-end agent learns actions
     ],
 )
 def test_invalid_values_fail_naming_the_key(override, key):

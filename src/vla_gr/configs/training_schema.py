@@ -76,6 +76,9 @@ class TrainingConfig:
     # share of training instructions rewritten in the TRAINING paraphrase vocabulary
     # (envs/paraphrase.py; disjoint from the held-out set robustness is measured on)
     paraphrase_prob: float = 0.0
+    # share of goal-head training frames mirrored left-right with their masks (instructions
+    # never say left or right); dual system only: an end-to-end action would need mirroring
+    flip_prob: float = 0.0
     # Evaluation / checkpointing.
     val_every: int = 200  # optimiser steps between validation losses (0 = never)
     val_batches: int = 8  # batches per validation (per process)
@@ -102,8 +105,9 @@ class TrainingConfig:
         check_positive("training.num_workers", self.num_workers, allow_zero=True)
         for key in ("steps", "batch_size", "grad_accum", "lr", "log_every", "val_batches"):
             check_positive(f"training.{key}", getattr(self, key))
-        if not 0.0 <= self.paraphrase_prob <= 1.0:
-            raise ValueError(f"training.paraphrase_prob={self.paraphrase_prob} must be in [0, 1]")
+        for key in ("paraphrase_prob", "flip_prob"):
+            if not 0.0 <= getattr(self, key) <= 1.0:
+                raise ValueError(f"training.{key}={getattr(self, key)} must be in [0, 1]")
         if not 0.0 <= self.min_lr_ratio <= 1.0:
             raise ValueError(f"training.min_lr_ratio={self.min_lr_ratio} must be in [0, 1]")
         for key in ("warmup_steps", "weight_decay", "grad_clip", "val_every", "checkpoint_every"):
@@ -175,4 +179,9 @@ def check_training_for_agent(training: TrainingConfig, agent: str) -> None:
         raise ValueError(
             f"training.best_metric='goal_iou' needs the goal head of model.agent=dual_system "
             f"(model.agent={agent!r})"
+        )
+    if training.flip_prob > 0.0 and agent != "dual_system":
+        raise ValueError(
+            f"training.flip_prob={training.flip_prob} mirrors goal-head frames; "
+            f"model.agent={agent!r} learns actions, which a mirror would falsify (set it to 0)"
         )
