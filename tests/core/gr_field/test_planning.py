@@ -314,3 +314,21 @@ def test_robot_next_to_a_wall_still_plans_away_from_it():
     assert out.has_path.all() and torch.isfinite(out.waypoints).all()
     assert float(out.waypoints[0, :, 0].max()) <= 0.05  # never towards the wall
     assert float(out.waypoints[0, -1].norm()) > 0.3
+
+
+def test_features_are_read_from_their_own_tick_and_cost_the_update_nothing():
+    first, second = (0.0, 0.0, 0.0), (0.8, 0.4, 1.2)
+    field = GRField(map_size=96)
+    out1 = field.update(obs_of(first))
+    assert list(field.last_timings) == [
+        "mapping", "masses", "poisson", "metric", "fast_marching", "path"
+    ]  # fmt: skip
+    out2 = field.update(obs_of(second))
+    ref = GRField(map_size=96)
+    ref_out = ref.update(obs_of(first))
+    # read after a later update, the first tick's features are still those of its own maps
+    torch.testing.assert_close(out1.features, ref_out.features)
+    assert not torch.allclose(out1.features, out2.features)
+    assert out2.features is out2.features  # computed once, then kept
+    phi = out2.features[0, FEATURE_NAMES.index("phi")]  # (h, w)
+    assert float(phi.min()) >= 0.0 and float(phi.max()) <= 1.0

@@ -11,8 +11,9 @@ One :meth:`GRField.update` per planner tick:
    (:meth:`GRField.christoffel`);
 5. geodesic distance ``T`` of that metric from the goal (or the frontier when no goal is seen)
    by fast marching with cost ``exp(psi)`` around the robot-inflated obstacles;
-6. outputs: egocentric heading-aligned features (B, C, h, w), the next waypoints of the
-   geodesic (B, K, 2) in the robot frame, and a picture for reports (:meth:`GRField.render`).
+6. outputs: the next waypoints of the geodesic (B, K, 2) in the robot frame, egocentric
+   heading-aligned features (B, C, h, w) and a picture for reports (:meth:`GRField.render`);
+   the features and the full potential behind them and the picture are computed when read.
 
 Next in the data flow: :mod:`vla_gr.core.gr_field.picture` (its top-down picture).
 """
@@ -22,7 +23,9 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 import torch
@@ -77,13 +80,22 @@ def snap_start(travel: np.ndarray, xy: np.ndarray, cell_size: float, radius: flo
 
 @dataclass
 class GRFieldOutput:
-    """What one planner tick produces."""
+    """What one planner tick produces.
 
-    features: torch.Tensor  # (B, C, h, w) egocentric, channels FEATURE_NAMES
+    ``features`` are computed from this tick's maps on first access and then kept: a planner
+    that only follows the waypoints (the navigator) never pays for them.
+    """
+
+    make_features: Callable[[], torch.Tensor] = field(repr=False)
     waypoints: torch.Tensor  # (B, K, 2) robot frame (forward, left), metres; 0 when no path
     has_path: torch.Tensor  # (B,) bool
     goal_seen: torch.Tensor  # (B,) bool: the path leads to the goal, not to the frontier
     distance: torch.Tensor  # (B,) geodesic distance (metric units) from the robot; inf if none
+
+    @cached_property
+    def features(self) -> torch.Tensor:
+        """(B, C, h, w) egocentric, heading-aligned, channels ``FEATURE_NAMES``."""
+        return self.make_features()
 
 
 class GRField(nn.Module):
@@ -100,8 +112,10 @@ class GRField(nn.Module):
         self.register_buffer("map_state", torch.zeros(0, 4, *self.grid.shape), persistent=False)
         self._last: dict | None = None
         #: seconds per part of the last update: mapping, masses, poisson, metric,
-        #: fast_marching (inflation + travel time + gradient), path, features
+        #: fast_marching (inflation + travel time + gradient), path (the features and the full
+        #: potential are computed when read, outside the update)
         self.last_timings: dict[str, float] = {}
+        self._rho: torch.Tensor | None = None  # (B, H, W) all mass of the last update
         #: (rows, cols) of the fast-marching window of each batch element in the last update
         self.planning_windows: list[tuple[int, int]] = []
 
@@ -113,7 +127,7 @@ class GRField(nn.Module):
         """Clear the map of the given batch elements (all, and forget the batch size, if None)."""
         if batch_indices is None:
             self.map_state = torch.zeros(0, 4, *self.grid.shape, device=self.map_state.device)
-            self._last = None
+            self._last, self._rho = None, None
             return
         idx = torch.as_tensor(batch_indices, dtype=torch.long).reshape(-1)
         if idx.numel() and (idx.min() < 0 or idx.max() >= self.map_state.shape[0]):
@@ -221,8 +235,9 @@ class GRField(nn.Module):
         rho_attr = rho_goal + rho_front  # (B, H, W) attracting mass
         rho = rho_attr - cfg.obstacle_density * occupied.float()  # (B, H, W) all mass
         tick("masses")
-        # one batched solve: the full potential (a feature) and the attracting part (metric)
-        phi, phi_attr = solve_poisson(torch.cat([rho, rho_attr]), h, cfg.G).split(len(rho))
+        # the attracting part shapes the metric; the full potential (features, pictures) is
+        # solved only when they are read
+        phi_attr = solve_poisson(rho_attr, h, cfg.G)  # (B, H, W)
         tick("poisson")
         proximity = obstacle_proximity(occupied, h, cfg.obstacle_length)  # (B, H, W)
         psi = conformal_log_factor(phi_attr, proximity, cfg.beta, cfg.kappa)  # (B, H, W)
@@ -245,21 +260,24 @@ class GRField(nn.Module):
         tick("fast_marching")  # travel (B, H, W), grads (B, 2, H, W), choice (B,)
         waypoints, has_path, distance = self._waypoints(travel, grads, robot_xy, pose)
         tick("path")
-        phi_hat = conformal_log_factor(phi, torch.zeros_like(phi), 1.0, 0.0)  # (B, H, W)
-        t_feat = torch.where(
-            torch.isfinite(travel), (travel / cfg.travel_clip).clamp(max=1.0), 1.0
-        )  # (B, H, W)
-        allo = torch.stack(
-            [phi_hat, psi, t_feat, grads[:, 0], grads[:, 1], occupied.float(), explored.float(),
-             layers["goal"], frontier.float()], dim=1,
-        )  # (B, C, H, W)  # fmt: skip
-        features = self._egocentric(allo, pose)  # (B, C, h, w)
-        tick("features")
         self._last = {
-            "phi_hat": phi_hat, "psi": psi, "travel": travel, "occupied": occupied,
-            "explored": explored, "frontier": frontier, "goal": goal_cells,
-            "robot_xy": robot_xy, "yaw": pose[:, 2], "has_path": has_path,
+            "psi": psi, "travel": travel, "occupied": occupied, "explored": explored,
+            "frontier": frontier, "goal": goal_cells, "robot_xy": robot_xy, "yaw": pose[:, 2],
+            "has_path": has_path,
         }  # fmt: skip
+        self._rho = rho  # (B, H, W): the full potential of last_maps["phi_hat"], on demand
+        last, goal_layer = self._last, layers["goal"]
+
+        def features() -> torch.Tensor:  # (B, C, h, w) from this tick's maps
+            t_feat = torch.where(
+                torch.isfinite(travel), (travel / cfg.travel_clip).clamp(max=1.0), 1.0
+            )  # (B, H, W)
+            allo = torch.stack(
+                [self._phi_hat(last, rho), psi, t_feat, grads[:, 0], grads[:, 1],
+                 occupied.float(), explored.float(), goal_layer, frontier.float()], dim=1,
+            )  # (B, C, H, W)  # fmt: skip
+            return self._egocentric(allo, pose)
+
         return GRFieldOutput(features, waypoints, has_path, (choice == 0) & has_path, distance)
 
     def _stopwatch(self):
@@ -422,7 +440,16 @@ class GRField(nn.Module):
         """
         if self._last is None:
             raise RuntimeError("GRField.last_maps needs a prior update()")
+        self._phi_hat(self._last, self._rho)
         return self._last
+
+    def _phi_hat(self, last: dict, rho: torch.Tensor) -> torch.Tensor:
+        """(B, H, W) the full potential of density ``rho`` rescaled to [0, 1], solved once and
+        kept in ``last`` (the maps of the update that produced ``rho``)."""
+        if "phi_hat" not in last:
+            phi = solve_poisson(rho, self.config.cell_size, self.config.G)  # (B, H, W)
+            last["phi_hat"] = conformal_log_factor(phi, torch.zeros_like(phi), 1.0, 0.0)
+        return last["phi_hat"]
 
     def christoffel(self) -> torch.Tensor:
         """Christoffel symbols (B, 2, 2, 2, H, W) of the last metric (call after update)."""
@@ -438,7 +465,7 @@ class GRField(nn.Module):
         """
         if self._last is None:
             raise RuntimeError("GRField.render() needs a prior update()")
-        last, h = self._last, self.config.cell_size
+        last, h = self.last_maps, self.config.cell_size
         if not 0 <= index < last["travel"].shape[0]:
             raise ValueError(f"index={index} out of range for batch {last['travel'].shape[0]}")
         robot = last["robot_xy"][index].cpu().numpy()  # (2,) metric
