@@ -20,8 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import os
-import platform
 import time
 from pathlib import Path
 
@@ -31,6 +29,7 @@ import torch
 from vla_gr.data.collect import make_env
 from vla_gr.evaluation.agents import PolicyAgent
 from vla_gr.evaluation.runner import run_episode
+from vla_gr.machine import describe_machine, machine_line
 from vla_gr.policy import VLAGRPolicy
 
 logger = logging.getLogger("bench_agent_latency")
@@ -139,9 +138,7 @@ def main(argv: list[str] | None = None) -> dict:
         "checkpoint": args.checkpoint,
         "split": args.split,
         "threads": args.threads,
-        "cpu": platform.processor() or platform.machine(),
-        "cpu_count": os.cpu_count(),
-        "torch": torch.__version__,
+        "machine": describe_machine(),
     }
     out = {"meta": meta, "results": results}
     args.out.parent.mkdir(parents=True, exist_ok=True)
@@ -151,7 +148,7 @@ def main(argv: list[str] | None = None) -> dict:
         f"`python benchmarks/bench_agent_latency.py --checkpoint {args.checkpoint} "
         f"--episodes {args.episodes} --split {args.split}`"
         + "".join(f" `--variant {v}`" for v in args.variant)
-        + f"\n\n{table(results)}\n"
+        + f"\n\n{machine_line(meta['machine'])}\n\n{table(results)}\n"
     )
     args.out.with_suffix(".md").write_text(text)
     logger.info("\n%s", table(results))

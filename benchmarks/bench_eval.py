@@ -21,7 +21,6 @@ import dataclasses
 import json
 import logging
 import os
-import platform
 import sys
 import tempfile
 import time
@@ -32,6 +31,8 @@ os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
 import torch  # noqa: E402
+
+from vla_gr.machine import describe_machine, machine_line  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent
 DEFAULT_OUT = ROOT / "results" / "bench_eval"
@@ -188,8 +189,9 @@ def write_results(result: dict, out: Path) -> str:
         "",
         f"{result['episodes']} val episodes, {result['image_size']}² RGB-D, budget "
         f"{result['max_steps']} steps; load average before/after: "
-        f"{result['loadavg_before']} / {result['loadavg_after']} on {result['cpus']} CPUs "
-        "(a machine shared with other jobs: numbers are noisy).",
+        f"{result['loadavg_before']} / {result['loadavg_after']}.",
+        "",
+        machine_line(result["machine"]),
         "",
         "| agent | workers | SR | mean steps | episodes/min | steps/s | decision p50 (ms) |",
         "|---|---|---|---|---|---|---|",
@@ -254,10 +256,7 @@ def main(argv=None) -> int:
         "overhead": over,
         "loadavg_before": before,
         "loadavg_after": [round(x, 2) for x in os.getloadavg()],
-        "cpus": os.cpu_count(),
-        "platform": platform.platform(),
-        "python": sys.version.split()[0],
-        "torch": torch.__version__,
+        "machine": describe_machine(),
     }
     sys.stdout.write(write_results(result, args.out))
     return 0

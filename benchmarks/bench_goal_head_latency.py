@@ -22,8 +22,6 @@ import argparse
 import dataclasses
 import json
 import logging
-import os
-import platform
 import time
 from contextlib import contextmanager
 from pathlib import Path
@@ -32,6 +30,7 @@ import numpy as np
 import torch
 
 from vla_gr.data.collect import make_env
+from vla_gr.machine import describe_machine, machine_line
 from vla_gr.policy import VLAGRPolicy
 from vla_gr.policy.frames import env_obs_to_frame
 
@@ -137,9 +136,7 @@ def main(argv: list[str] | None = None) -> dict:
         "calls": args.calls,
         "rounds": args.rounds,
         "threads": args.threads,
-        "cpu": platform.processor() or platform.machine(),
-        "cpu_count": os.cpu_count(),
-        "torch": torch.__version__,
+        "machine": describe_machine(),
     }
     lines = [
         "| variant | p50 ms | p95 ms | p50 / one pass |",
@@ -158,7 +155,7 @@ def main(argv: list[str] | None = None) -> dict:
         f"# Goal-head latency, batch 1, {args.threads} thread(s); medians of {args.rounds} "
         f"rounds of {args.calls} calls\n\n`python benchmarks/bench_goal_head_latency.py "
         f"--checkpoint {args.checkpoint} --calls {args.calls} --rounds {args.rounds}`\n\n"
-        f"{table}\n"
+        f"{machine_line(meta['machine'])}\n\n{table}\n"
     )
     logger.info("\n%s", table)
     return results

@@ -18,7 +18,6 @@ import json
 import logging
 import math
 import os
-import platform
 import time
 from pathlib import Path
 
@@ -27,6 +26,7 @@ import torch
 
 from vla_gr.core.gr_field import GRField, GRFieldConfig
 from vla_gr.geometry.camera import box_room_depth
+from vla_gr.machine import describe_machine, machine_line
 
 logger = logging.getLogger("bench_gr_field")
 
@@ -101,7 +101,7 @@ def to_markdown(results: dict) -> str:
         "",
         f"`{results['command']}`",
         "",
-        f"Machine: {results['machine']}; torch threads: {results['threads']}; "
+        f"{machine_line(results['machine'])} Torch threads: {results['threads']}; "
         f"load average before / after: {results['load_before']} / {results['load_after']}.",
         "",
         "| map cells | cell (m) | FMM window (cells) | full update median (p90) ms | "
@@ -163,8 +163,7 @@ def main(argv=None) -> dict:
             for k, v in vars(args).items()
             if k != "out"
         ),  # fmt: skip
-        "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-        f"torch {torch.__version__}",
+        "machine": describe_machine(),
         "threads": args.threads,
         "load_before": load_before,
         "load_after": [round(x, 2) for x in os.getloadavg()],

@@ -22,7 +22,6 @@ import copy
 import json
 import logging
 import os
-import platform
 import statistics
 import sys
 import time
@@ -34,6 +33,7 @@ import torch
 from vla_gr.core.diffusion_policy import DiffusionPolicy
 from vla_gr.core.dual_system import DualSystemArchitecture
 from vla_gr.core.peft_modules import apply_lora_to_model, merge_peft, trainable_parameters
+from vla_gr.machine import describe_machine, machine_line
 
 logger = logging.getLogger("bench_heads")
 
@@ -122,20 +122,9 @@ def pick_hidden_dim(denoiser: str) -> int:
 
 
 def machine() -> dict:
-    cpu = platform.processor()
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next(line.split(":", 1)[1].strip() for line in f if "model name" in line)
-    except (OSError, StopIteration):
-        pass
-    return {
-        "cpu": cpu,
-        "cores": os.cpu_count(),
-        "torch": torch.__version__,
-        "python": sys.version.split()[0],
-        "threads": torch.get_num_threads(),
-        "loadavg_start": os.getloadavg(),
-    }
+    """The machine (:func:`vla_gr.machine.describe_machine`) and this run's thread count."""
+    info = describe_machine()
+    return info | {"threads": torch.get_num_threads(), "loadavg_start": info["load_average"]}
 
 
 @torch.inference_mode()
@@ -267,7 +256,7 @@ def to_markdown(res: dict) -> str:
     lines = [
         "# bench_heads: batch-1 CPU latency",
         "",
-        f"{m['cpu']} ({m['cores']} cores), torch {m['torch']}, {m['threads']} intra-op thread(s); "
+        f"{machine_line(m)} {m['threads']} intra-op thread(s); "
         f"load average at start {m['loadavg_start'][0]:.2f}, at end {m['loadavg_end'][0]:.2f}. "
         f"Median over {res['repeats']} rounds of {res['iters']} calls "
         "(DDPM/DDIM: fewer calls); compared variants interleaved call by call.",

@@ -15,7 +15,6 @@ import argparse
 import json
 import logging
 import os
-import platform
 import time
 from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
@@ -135,6 +134,8 @@ def summarize(records: list[dict]) -> dict:
 
 
 def to_markdown(results: dict) -> str:
+    from vla_gr.machine import machine_line
+
     s = results["summary"]
     lines = [
         f"# Navigator with the true goal mask ({results['split']} "
@@ -154,7 +155,7 @@ def to_markdown(results: dict) -> str:
         "|---|---|",
         *[f"| {c} | {n} |" for c, n in s["causes"].items()],
         "",
-        f"Machine: {results['machine']}; workers: {results['workers']}; torch threads 1; "
+        f"{machine_line(results['machine'])} Workers: {results['workers']}; torch threads 1; "
         f"wall {results['wall_s']:.0f} s.",
         "",
     ]
@@ -191,7 +192,7 @@ def main(argv=None) -> dict:
             futures = [pool.submit(run_episodes, chunk, *job) for chunk in chunks]
             records = [r for f in futures for r in f.result()]
     records.sort(key=lambda r: r["episode_index"])
-    import torch
+    from vla_gr.machine import describe_machine
 
     results = {
         "command": "python benchmarks/bench_navigator.py "
@@ -199,8 +200,7 @@ def main(argv=None) -> dict:
         f"--plan-every {args.plan_every} --workers {args.workers} --max-steps {args.max_steps}",
         "split": args.split, "first": args.first, "episodes": args.episodes,
         "plan_every": args.plan_every, "workers": args.workers,
-        "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-        f"torch {torch.__version__}",
+        "machine": describe_machine(),
         "wall_s": time.perf_counter() - t0,
         "summary": summarize(records),
         "episodes_detail": [{k: v for k, v in r.items() if k != "latency_ms"} for r in records],

@@ -7,6 +7,7 @@ import dataclasses
 import json
 import logging
 import math
+import os
 import shutil
 from pathlib import Path
 
@@ -94,6 +95,7 @@ def test_results_do_not_depend_on_the_number_of_workers(tmp_path):
     assert without_timing(one) == without_timing(two)
     assert no_latency(rows_of(tmp_path / "w1")) == no_latency(rows_of(tmp_path / "w2"))
     assert two["timing"]["workers"] == 2
+    assert two["timing"]["machine"]["cores"] == os.cpu_count()  # the eval time's context
 
 
 def test_a_killed_run_resumes_from_its_finished_rows(tmp_path):

@@ -171,6 +171,7 @@ def evaluate(cfg, agent: str | None = None) -> dict:
     from vla_gr.evaluation.report import replay_pictures, select_episodes, write_report
     from vla_gr.evaluation.runner import RowWriter, iter_episode_rows
     from vla_gr.evaluation.summary import summarize_rows
+    from vla_gr.machine import describe_machine
 
     agent = agent or default_agent(cfg)
     check_agent(agent, cfg)
@@ -200,7 +201,9 @@ def evaluate(cfg, agent: str | None = None) -> dict:
         writer.close()
     rows = [done[k] for k in indices]
     seconds = time.perf_counter() - t0
-    metrics = summarize_rows(rows, header, seconds, cfg.eval.workers, ran=len(todo))
+    metrics = summarize_rows(
+        rows, header, seconds, cfg.eval.workers, ran=len(todo), machine=describe_machine()
+    )
     (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=1))
     chosen = select_episodes(rows, cfg.eval.gif_successes, cfg.eval.gif_per_cause)
     pictures = {}

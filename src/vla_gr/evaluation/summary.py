@@ -95,12 +95,17 @@ def low_confidence_episodes(rows: Sequence[dict]) -> list[int]:
 
 
 def summarize_rows(
-    rows: Sequence[dict], header: dict, seconds: float, workers: int, ran: int | None = None
+    rows: Sequence[dict],
+    header: dict,
+    seconds: float,
+    workers: int,
+    ran: int | None = None,
+    machine: dict | None = None,
 ) -> dict:
     """The ``metrics.json`` content; ``header`` holds the run settings (agent, env, ...).
 
     ``seconds`` is the time this invocation took to run ``ran`` of the episodes (fewer than
-    ``len(rows)`` after a resume).
+    ``len(rows)`` after a resume), on ``machine`` (:func:`vla_gr.machine.describe_machine`).
     """
     ran = len(rows) if ran is None else ran
     if not rows:
@@ -119,6 +124,7 @@ def summarize_rows(
             "workers": workers,
             "episodes_run": ran,
             "episodes_per_min": 60.0 * ran / seconds if seconds > 0 and ran else 0.0,
+            "machine": machine,
         },
     }
 
