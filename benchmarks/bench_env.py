@@ -20,7 +20,6 @@ import argparse
 import json
 import logging
 import os
-import platform
 import statistics
 import sys
 import tempfile
@@ -34,6 +33,7 @@ import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
 
 from vla_gr.envs import ENV_ID  # noqa: E402  (importing registers the env id)
+from vla_gr.machine import describe_machine, machine_line  # noqa: E402
 
 logger = logging.getLogger("bench_env")
 ROOT = Path(__file__).resolve().parent
@@ -156,9 +156,9 @@ def format_markdown(result: dict) -> str:
         "# bench_env: ObjectNav env throughput",
         "",
         f"`{result['command']}`  ",
-        f"{m['cpus']} CPUs ({m['processor']}), MuJoCo {m['mujoco']}, MUJOCO_GL={m['mujoco_gl']}, "
+        f"{machine_line(m)} MuJoCo {m['mujoco']}, MUJOCO_GL={m['mujoco_gl']}, "
         f"LP_NUM_THREADS={m['lp_num_threads']}, load average {m['load_before']} before / "
-        f"{m['load_after']} after (shared machine).",
+        f"{m['load_after']} after.",
         "",
         "| benchmark | median | unit | runs |",
         "|---|---:|---|---|",
@@ -252,10 +252,8 @@ def main(argv=None) -> int:
 
     result = {
         "command": "python benchmarks/bench_env.py " + " ".join(argv or sys.argv[1:]),
-        "machine": {
-            "cpus": os.cpu_count(),
-            "processor": platform.processor() or platform.machine(),
-            "python": platform.python_version(),
+        "machine": describe_machine()
+        | {
             "mujoco": mujoco.__version__,
             "mujoco_gl": os.environ.get("MUJOCO_GL"),
             "lp_num_threads": os.environ.get("LP_NUM_THREADS"),

@@ -13,7 +13,6 @@ import argparse
 import json
 import logging
 import os
-import platform
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -24,6 +23,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 
 import numpy as np  # noqa: E402
+
+from vla_gr.machine import describe_machine, machine_line  # noqa: E402
 
 logger = logging.getLogger("bench_expert")
 
@@ -167,7 +168,7 @@ def main(argv: list[str] | None = None) -> dict:
     meta = {
         "command": command.strip(),
         "args": {k: _relative(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
-        "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs",
+        "machine": describe_machine(),
         "workers": workers,
     }
     payload = {"meta": meta, "runs": runs}
@@ -175,8 +176,10 @@ def main(argv: list[str] | None = None) -> dict:
     md = [
         "# Geodesic expert benchmark",
         "",
-        f"`{meta['command']}` on {meta['machine']}, {workers} worker process(es), "
-        f"64x64 RGB-D rendered every step. Noise = DART std on (v, w) / excursion probability.",
+        f"`{meta['command']}`: {workers} worker process(es), 64x64 RGB-D rendered every step. "
+        "Noise = DART std on (v, w) / excursion probability.",
+        "",
+        machine_line(meta["machine"]),
         "",
         table,
         "",

@@ -26,8 +26,6 @@ import argparse
 import dataclasses
 import json
 import logging
-import os
-import platform
 import tempfile
 import time
 import zlib
@@ -44,6 +42,7 @@ from vla_gr.core.grounding import confusion_metrics, mask_confusion
 from vla_gr.data.goal_frames import GoalFrameDataset
 from vla_gr.data.store import EpisodeStore
 from vla_gr.envs.instructions import parse_instruction
+from vla_gr.machine import describe_machine
 from vla_gr.policy import VLAGRPolicy
 
 logger = logging.getLogger("bench_goal_head")
@@ -258,7 +257,7 @@ def run(args: argparse.Namespace) -> dict:
     result["split"], result["episodes"] = args.split, args.episodes
     result["paraphrase"] = bool(args.paraphrase)
     result["threshold"], result["min_pixels"] = g.threshold, g.min_pixels
-    result["machine"] = f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores"
+    result["machine"] = describe_machine()
     return result
 
 

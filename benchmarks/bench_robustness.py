@@ -26,7 +26,6 @@ import argparse
 import json
 import logging
 import os
-import platform
 import time
 from pathlib import Path
 
@@ -81,6 +80,8 @@ def paraphrased_episodes(args) -> Path:
 
 
 def main() -> None:
+    from vla_gr.machine import describe_machine, machine_line
+
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--checkpoint", default="checkpoints/vla_gr_cpu")
     parser.add_argument("--agent", default="checkpoint")
@@ -137,8 +138,7 @@ def main() -> None:
             f"| {name} | {r['episodes']} | {r['SR']:.3f} | {r['SPL']:.3f} | "
             f"{r['collision_rate']:.3f} | {delta} |"
         )
-    lines += ["", f"Machine: {platform.machine()}, {os.cpu_count()} cores; "
-              f"wall {time.perf_counter() - t0:.0f} s."]  # fmt: skip
+    lines += ["", f"{machine_line(describe_machine())} Wall {time.perf_counter() - t0:.0f} s."]
     table = "\n".join(lines)
     print(table)
     stem.with_suffix(".md").write_text(table + "\n")

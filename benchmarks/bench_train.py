@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import platform
 import statistics
 import tempfile
 import time
@@ -24,6 +23,7 @@ from pathlib import Path
 import torch
 
 from vla_gr.configs import load_config
+from vla_gr.machine import cpu_model
 from vla_gr.train import build_policy
 from vla_gr.training.data import build_datasets, build_loaders, write_synthetic_store
 from vla_gr.training.distributed import DistInfo, resolve_device
@@ -111,7 +111,7 @@ def main() -> None:
         write_synthetic_store(store, 6, 64, cfg.model.image_size, cfg.seed)
         runs = [one_run(cfg, store, args.steps, args.warmup, device) for _ in range(args.runs)]
     sps = [r["samples_per_s"] for r in runs]
-    cpu = f"CPU ({platform.processor() or platform.machine()}), {torch.get_num_threads()} threads"
+    cpu = f"CPU ({cpu_model()}), {torch.get_num_threads()} threads"
     result = {
         "config": args.config,
         "overrides": args.overrides,
