@@ -164,3 +164,29 @@ def test_distractor_mask_is_the_goals_same_category_objects():
     np.testing.assert_array_equal(record.distractor_mask, np.stack(expected))
     assert record.distractor_mask.sum() > 100  # this episode shows them
     assert not (record.distractor_mask & record.goal_mask).any()
+
+
+@pytest.mark.parametrize("rooms", [1, 6])
+def test_every_env_setting_of_the_config_reaches_the_env(rooms):
+    overrides = [f"env.num_rooms={rooms}", "env.clutter=0.5", "env.scene_cache_size=2"]
+    _, cfg = load_config("config_debug", overrides)
+    env = make_env(env_kwargs_from_config(cfg, "test"))
+    try:
+        env.reset(seed=0)
+        nav = env.unwrapped
+        assert (nav.num_rooms, nav.clutter, nav.scene_cache_size) == (rooms, 0.5, 2)
+        assert len(nav.house.rooms) == rooms  # the house really has that many rooms
+    finally:
+        env.close()
+
+
+def test_env_kwargs_cover_every_env_config_key():
+    import dataclasses
+
+    from vla_gr.configs.schema import EnvConfig
+
+    _, cfg = load_config("config_debug", [])
+    kwargs = env_kwargs_from_config(cfg, "val")
+    keys = {f.name for f in dataclasses.fields(EnvConfig)}
+    # split is the function's argument; episodes is passed only when a file is named
+    assert keys - set(kwargs) == {"episodes"}

@@ -33,6 +33,10 @@ def env_kwargs_from_config(cfg, split: str, semantic: bool = True) -> dict:
         "max_episode_steps": cfg.env.max_episode_steps,
         "success_distance": cfg.env.success_distance,
         "semantic": semantic,
+        "max_depth": cfg.env.max_depth,
+        "num_rooms": cfg.env.num_rooms,
+        "clutter": cfg.env.clutter,
+        "scene_cache_size": cfg.env.scene_cache_size,
         "depth_noise_std": cfg.env.depth_noise_std,
         "actuation_noise": cfg.env.actuation_noise,
     }
