@@ -118,6 +118,8 @@ def run_header(cfg, agent: str, source: str, indices: Sequence[int]) -> dict:
             "max_depth": env.max_depth,
             "depth_noise_std": env.depth_noise_std,
             "actuation_noise": env.actuation_noise,
+            "num_rooms": env.num_rooms,
+            "clutter": env.clutter,
         },
         "thresholds": {
             "goal_seen_pixels": e.goal_seen_pixels,
