@@ -324,6 +324,9 @@ def test_features_are_read_from_their_own_tick_and_cost_the_update_nothing():
         "mapping", "masses", "poisson", "metric", "fast_marching", "path"
     ]  # fmt: skip
     out2 = field.update(obs_of(second))
+    maps = field.last_maps
+    assert maps["occupied"].any() and "phi_hat" not in maps  # the navigator's reads solve nothing
+    assert maps["phi_hat"] is maps["phi_hat"] and "phi_hat" in maps  # solved once when read
     ref = GRField(map_size=96)
     ref_out = ref.update(obs_of(first))
     # read after a later update, the first tick's features are still those of its own maps

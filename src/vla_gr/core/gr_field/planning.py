@@ -98,6 +98,22 @@ class GRFieldOutput:
         return self.make_features()
 
 
+class _TickMaps(dict):
+    """The allocentric maps of one update; ``phi_hat``, the full potential of the update's
+    density ``rho`` (B, H, W) rescaled to [0, 1], is solved on first access and then kept."""
+
+    def __init__(self, maps: dict, rho: torch.Tensor, cell_size: float, G: float) -> None:
+        super().__init__(maps)
+        self._rho, self._cell_size, self._G = rho, cell_size, G
+
+    def __missing__(self, key: str) -> torch.Tensor:
+        if key != "phi_hat":
+            raise KeyError(key)
+        phi = solve_poisson(self._rho, self._cell_size, self._G)  # (B, H, W)
+        self[key] = conformal_log_factor(phi, torch.zeros_like(phi), 1.0, 0.0)  # (B, H, W)
+        return self[key]
+
+
 class GRField(nn.Module):
     """Batched GR field with per-episode map state (see module docstring)."""
 
@@ -115,7 +131,6 @@ class GRField(nn.Module):
         #: fast_marching (inflation + travel time + gradient), path (the features and the full
         #: potential are computed when read, outside the update)
         self.last_timings: dict[str, float] = {}
-        self._rho: torch.Tensor | None = None  # (B, H, W) all mass of the last update
         #: (rows, cols) of the fast-marching window of each batch element in the last update
         self.planning_windows: list[tuple[int, int]] = []
 
@@ -127,7 +142,7 @@ class GRField(nn.Module):
         """Clear the map of the given batch elements (all, and forget the batch size, if None)."""
         if batch_indices is None:
             self.map_state = torch.zeros(0, 4, *self.grid.shape, device=self.map_state.device)
-            self._last, self._rho = None, None
+            self._last = None
             return
         idx = torch.as_tensor(batch_indices, dtype=torch.long).reshape(-1)
         if idx.numel() and (idx.min() < 0 or idx.max() >= self.map_state.shape[0]):
@@ -260,20 +275,19 @@ class GRField(nn.Module):
         tick("fast_marching")  # travel (B, H, W), grads (B, 2, H, W), choice (B,)
         waypoints, has_path, distance = self._waypoints(travel, grads, robot_xy, pose)
         tick("path")
-        self._last = {
+        self._last = last = _TickMaps({
             "psi": psi, "travel": travel, "occupied": occupied, "explored": explored,
             "frontier": frontier, "goal": goal_cells, "robot_xy": robot_xy, "yaw": pose[:, 2],
             "has_path": has_path,
-        }  # fmt: skip
-        self._rho = rho  # (B, H, W): the full potential of last_maps["phi_hat"], on demand
-        last, goal_layer = self._last, layers["goal"]
+        }, rho, h, cfg.G)  # fmt: skip
+        goal_layer = layers["goal"]
 
         def features() -> torch.Tensor:  # (B, C, h, w) from this tick's maps
             t_feat = torch.where(
                 torch.isfinite(travel), (travel / cfg.travel_clip).clamp(max=1.0), 1.0
             )  # (B, H, W)
             allo = torch.stack(
-                [self._phi_hat(last, rho), psi, t_feat, grads[:, 0], grads[:, 1],
+                [last["phi_hat"], psi, t_feat, grads[:, 0], grads[:, 1],
                  occupied.float(), explored.float(), goal_layer, frontier.float()], dim=1,
             )  # (B, C, H, W)  # fmt: skip
             return self._egocentric(allo, pose)
@@ -434,22 +448,14 @@ class GRField(nn.Module):
     def last_maps(self) -> dict[str, torch.Tensor]:
         """Allocentric layers of the last update, each (B, H, W) in the map grid.
 
-        ``phi_hat`` (potential in [0, 1]), ``psi``, ``travel`` (T, inf where unreachable),
-        ``occupied``, ``explored``, ``frontier``, ``goal`` (goal cells, bool); plus
+        ``phi_hat`` (potential in [0, 1], solved on first read), ``psi``, ``travel`` (T, inf
+        where unreachable), ``occupied``, ``explored``, ``frontier``, ``goal`` (goal cells,
+        bool); plus
         ``robot_xy`` (B, 2) metres from the grid corner, ``yaw`` (B,), ``has_path`` (B,).
         """
         if self._last is None:
             raise RuntimeError("GRField.last_maps needs a prior update()")
-        self._phi_hat(self._last, self._rho)
         return self._last
-
-    def _phi_hat(self, last: dict, rho: torch.Tensor) -> torch.Tensor:
-        """(B, H, W) the full potential of density ``rho`` rescaled to [0, 1], solved once and
-        kept in ``last`` (the maps of the update that produced ``rho``)."""
-        if "phi_hat" not in last:
-            phi = solve_poisson(rho, self.config.cell_size, self.config.G)  # (B, H, W)
-            last["phi_hat"] = conformal_log_factor(phi, torch.zeros_like(phi), 1.0, 0.0)
-        return last["phi_hat"]
 
     def christoffel(self) -> torch.Tensor:
         """Christoffel symbols (B, 2, 2, 2, H, W) of the last metric (call after update)."""
