@@ -64,6 +64,37 @@ def test_windows_match_store_exactly(store_path, in_memory):
             assert item["instruction"] == rec.instruction
 
 
+def test_in_memory_masks_are_bit_packed_losslessly_at_any_width(tmp_path):
+    # Width 10 is not a multiple of 8: unpacking must cut the padding bits off.
+    path = tmp_path / "w10.zarr"
+    store = EpisodeStore.create(path, image_size=10)
+    for i, n in enumerate(LENGTHS):
+        store.append(fake_episode(i, n, image_size=10))
+    packed = EpisodeWindowDataset(path, 2, 3, split="all", in_memory=True)
+    on_disk = EpisodeWindowDataset(path, 2, 3, split="all", in_memory=False)
+    assert packed._frames["goal_mask"].shape[1:] == (10, 2)  # 10 columns in 2 bytes
+    for i in range(len(packed)):
+        a, b = packed[i], on_disk[i]
+        for key in ("goal_mask", "distractor_mask"):
+            assert a[key].dtype == torch.bool and a[key].shape == b[key].shape == (2, 1, 10, 10)
+            assert torch.equal(a[key], b[key])
+
+
+def test_depth_float16_halves_depth_memory_within_its_rounding(store_path):
+    full = EpisodeWindowDataset(store_path, 2, 3, split="all")
+    half = EpisodeWindowDataset(store_path, 2, 3, split="all", depth_float16=True)
+    saved = full.memory_bytes() - half.memory_bytes()
+    assert saved == full._frames["depth"].nbytes // 2 > 0
+    worst = 0.0
+    for i in range(len(full)):
+        a, b = full[i]["depth"], half[i]["depth"]  # (T, 1, H, W)
+        assert b.dtype == torch.float32
+        worst = max(worst, float(((b - a).abs() / a).max()))
+        for key in ("rgb", "pose", "action", "goal_mask"):
+            assert torch.equal(full[i][key], half[i][key])
+    assert 0.0 < worst <= 2.0**-11
+
+
 def test_edges_repeat_first_and_last_frame(store_path):
     ds = EpisodeWindowDataset(store_path, n_obs_steps=4, horizon=6, split="all", rgb_uint8=True)
     first = ds[0]  # episode 0, t=0: whole history is frame 0
@@ -120,3 +151,20 @@ def test_bad_arguments(store_path):
         EpisodeWindowDataset(store_path, n_obs_steps=0)
     with pytest.raises(ValueError, match="split"):
         EpisodeWindowDataset(store_path, split="test")
+
+
+def test_training_depth_float16_reaches_both_datasets(tmp_path):
+    from vla_gr.configs import load_config
+    from vla_gr.training.data import build_datasets
+
+    path = tmp_path / "train.zarr"
+    overrides = [f"training.dataset={path}", "training.batch_size=2"]
+    _, cfg = load_config("config_debug", [*overrides, "training.depth_float16=true"])
+    store = EpisodeStore.create(path, image_size=cfg.model.image_size)
+    for e in range(4):
+        store.append(fake_episode(e, 6, image_size=cfg.model.image_size))
+    train, val = build_datasets(cfg, path)
+    assert train._frames["depth"].dtype == val._frames["depth"].dtype == np.float16
+    _, cfg = load_config("config_debug", overrides)
+    train, _ = build_datasets(cfg, path)
+    assert train._frames["depth"].dtype == np.float32

@@ -80,6 +80,11 @@ class EpisodeWindowDataset(Dataset):
     reads whole episodes from the store on demand and keeps the last ``cache_episodes``.
     A store opened with ``on_corrupt="skip"`` contributes only its intact episodes (the
     split is drawn over all episodes first, so it does not move when some are damaged).
+
+    In memory, boolean frames (the masks) are held bit-packed, 8 pixels a byte, and unpacked
+    per item: lossless, an eighth of the bytes. ``depth_float16=True`` also holds depth in
+    float16 (half the bytes; relative rounding error <= 2**-11, 2.4 mm at 5 m); items are
+    float32 either way.
     """
 
     def __init__(
@@ -96,6 +101,7 @@ class EpisodeWindowDataset(Dataset):
         rgb_uint8: bool = False,
         normalize: bool = False,
         on_corrupt: str = "error",
+        depth_float16: bool = False,
     ) -> None:
         if n_obs_steps < 1:
             raise ValueError(f"n_obs_steps={n_obs_steps} must be >= 1")
@@ -143,8 +149,15 @@ class EpisodeWindowDataset(Dataset):
             else (np.zeros(0, dtype=np.int64))
         )  # (S,)
         self.in_memory = in_memory
+        self.depth_float16 = depth_float16
         self.cache_episodes = max(1, int(cache_episodes))
         self._cache: OrderedDict[int, dict[str, np.ndarray]] = OrderedDict()
+        # Width of the last axis of each boolean frame key (held bit-packed in memory).
+        self._packed_width = {
+            k: int(store.data_array(k).shape[-1])
+            for k in store.frame_keys
+            if store.data_array(k).dtype == bool
+        }
         if in_memory:
             self._frames = {k: self._load_selected(k) for k in store.frame_keys}
         self._instructions = store.instructions()
@@ -161,12 +174,24 @@ class EpisodeWindowDataset(Dataset):
         )
 
     def _load_selected(self, key: str) -> np.ndarray:
-        """Concatenated frames (sum of lengths, ...) of the selected episodes."""
+        """Concatenated frames (sum of lengths, ...) of the selected episodes, in their
+        in-memory form: booleans bit-packed along the last axis, depth in float16 when asked."""
         arr = self.store.data_array(key)
-        parts = [arr[s : s + n] for s, n in zip(self._store_starts, self._lengths)]
-        if not parts:
-            return np.zeros((0, *arr.shape[1:]), dtype=arr.dtype)
-        return np.concatenate(parts, axis=0)
+        shape, dtype = arr.shape[1:], arr.dtype
+        if key in self._packed_width:
+            shape, dtype = (*shape[:-1], (shape[-1] + 7) // 8), np.uint8
+        elif key == "depth" and self.depth_float16:
+            dtype = np.float16
+        # Filled in place: the peak is the final array, not the parts plus their concatenation.
+        out = np.empty((int(self._lengths.sum()), *shape), dtype=dtype)  # (sum of lengths, ...)
+        for s, n, at in zip(self._store_starts, self._lengths, self._local_starts):
+            part = arr[s : s + n]  # (n, ...)
+            out[at : at + n] = np.packbits(part, axis=-1) if key in self._packed_width else part
+        return out
+
+    def memory_bytes(self) -> int:
+        """Bytes held by the in-memory frames (0 when frames are read on demand)."""
+        return sum(a.nbytes for a in self._frames.values()) if self.in_memory else 0
 
     def _episode_frames(self, j: int) -> dict[str, np.ndarray]:
         """All frames of selected episode ``j`` read from the store, through a small LRU."""
@@ -183,9 +208,13 @@ class EpisodeWindowDataset(Dataset):
 
     def _gather(self, key: str, j: int, idx: np.ndarray) -> np.ndarray:
         """Frames ``idx`` (K,) within selected episode ``j`` -> (K, ...)."""
-        if self.in_memory:
-            return self._frames[key][int(self._local_starts[j]) + idx]
-        return self._episode_frames(j)[key][idx]
+        if not self.in_memory:
+            return self._episode_frames(j)[key][idx]
+        frames = self._frames[key][int(self._local_starts[j]) + idx]  # (K, ...)
+        if key in self._packed_width:
+            width = self._packed_width[key]
+            return np.unpackbits(frames, axis=-1, count=width).astype(bool)  # (K, ..., W)
+        return frames.astype(np.float32) if frames.dtype == np.float16 else frames
 
     def __len__(self) -> int:
         return int(self._sample_episode.shape[0])

@@ -64,7 +64,11 @@ def build_datasets(cfg, path: Path) -> tuple[EpisodeWindowDataset, EpisodeWindow
     store is refused, or its damaged episodes left out with ``training.on_corrupt=skip``."""
     m, t = cfg.model, cfg.training
     kwargs = dict(
-        n_obs_steps=m.n_obs_steps, horizon=m.horizon, val_ratio=t.val_ratio, seed=cfg.seed
+        n_obs_steps=m.n_obs_steps,
+        horizon=m.horizon,
+        val_ratio=t.val_ratio,
+        seed=cfg.seed,
+        depth_float16=t.depth_float16,
     )
     store = EpisodeStore.open(path, mode="r", on_corrupt=t.on_corrupt)
     train = EpisodeWindowDataset(store, split="train", **kwargs)
