@@ -11,9 +11,11 @@ from vla_gr.core.gr_field.physics import (
     christoffel_conformal,
     christoffel_from_metric,
     conformal_speed_squared,
+    dilate_square,
     frontier_mask,
     green_kernel_2d,
     grid_gradient,
+    grow_through,
     integrate_geodesic,
     normalise_mass,
     obstacle_proximity,
@@ -114,6 +116,32 @@ def test_frontier_mass_and_proximity():
     prox = obstacle_proximity(occupied, 0.1, 0.3)[0]
     assert prox[1, 1] == 1 and float(prox[1, 4]) == pytest.approx(math.exp(-0.3 / 0.3))
     assert torch.all(obstacle_proximity(torch.zeros(1, 3, 3, dtype=torch.bool), 0.1, 0.3) == 0)
+
+
+@pytest.mark.parametrize("steps", [0, 1, 3, 6])
+def test_grow_through_equals_full_grid_rounds(steps):
+    gen = torch.Generator().manual_seed(steps)
+    passable = torch.rand(3, 24, 20, generator=gen) > 0.3  # (B, H, W)
+    seed = torch.zeros(3, 24, 20, dtype=torch.bool)
+    seed[0, 0, 19] = True  # at a corner: the box is clipped by the grid
+    seed[1, 12, 3] = seed[1, 14, 9] = True
+    # map 2 has no seed of its own but shares the box of the others
+    expected = seed.clone()
+    for _ in range(steps):
+        expected = dilate_square(expected, 1) & passable
+    grown = grow_through(seed, passable, steps)
+    assert torch.equal(grown, expected)
+    assert not grown[2].any()
+    if steps >= 2:  # a move onto an impassable cell stops the growth there
+        wall = torch.ones(1, 9, 9, dtype=torch.bool)
+        wall[0, :, 4] = False
+        one = torch.zeros(1, 9, 9, dtype=torch.bool)
+        one[0, 4, 2] = True
+        assert not grow_through(one, wall, steps)[0, :, 5:].any()
+    nothing = torch.zeros(2, 5, 5, dtype=torch.bool)
+    assert torch.equal(grow_through(nothing, passable[:2, :5, :5], steps), nothing)
+    with pytest.raises(ValueError, match="steps"):
+        grow_through(seed, passable, -1)
 
 
 # --------------------------------------------------------------------------- metric

@@ -55,6 +55,30 @@ def dilate_square(mask: torch.Tensor, k: int) -> torch.Tensor:
     return x[:, 0] > 0
 
 
+def grow_through(seed: torch.Tensor, passable: torch.Tensor, steps: int) -> torch.Tensor:
+    """Cells (B, H, W) bool reached from ``seed`` in at most ``steps`` 8-neighbour moves, each
+    onto a ``passable`` cell: ``steps`` rounds of ``dilate_square(., 1) & passable``.
+
+    Computed on the bounding box of all seeds grown by ``steps + 1`` cells, which no move can
+    leave, so the answer equals the full-grid rounds; no seed returns ``seed`` unchanged.
+    """
+    if steps < 0:
+        raise ValueError(f"steps must be >= 0, got {steps}")
+    rows = seed.any(dim=(0, 2)).nonzero().flatten()  # (R,) rows holding a seed in any map
+    if len(rows) == 0 or steps == 0:
+        return seed.clone()
+    cols = seed.any(dim=(0, 1)).nonzero().flatten()  # (C,)
+    H, W = seed.shape[-2:]
+    r = slice(max(int(rows[0]) - steps - 1, 0), min(int(rows[-1]) + steps + 2, H))
+    c = slice(max(int(cols[0]) - steps - 1, 0), min(int(cols[-1]) + steps + 2, W))
+    grown, ok = seed[:, r, c], passable[:, r, c]  # (B, h, w) the box
+    for _ in range(steps):
+        grown = dilate_square(grown, 1) & ok  # (B, h, w)
+    out = seed.clone()  # (B, H, W)
+    out[:, r, c] = grown
+    return out
+
+
 def normalise_mass(weights: torch.Tensor, total: float | torch.Tensor, cell_size: float):
     """Density (B, H, W) proportional to ``weights`` (B, H, W) with integral ``total``.
 

@@ -37,8 +37,8 @@ from vla_gr.core.gr_field.mapping import centred_grid, empty_map, map_layers, up
 from vla_gr.core.gr_field.physics import (
     christoffel_conformal,
     conformal_log_factor,
-    dilate_square,
     frontier_mask,
+    grow_through,
     normalise_mass,
     obstacle_proximity,
     solve_poisson,
@@ -260,9 +260,8 @@ class GRField(nn.Module):
 
         # goals sit on obstacles: the robot's centre reaches the free cells within its radius,
         # grown from the goal one cell at a time so that the halo never crosses a wall
-        halo, passable = goal_cells, goal_cells | ~occupied  # (B, H, W)
-        for _ in range(math.ceil((cfg.robot_radius + h) / h)):
-            halo = dilate_square(halo, 1) & passable
+        steps = math.ceil((cfg.robot_radius + h) / h)
+        halo = grow_through(goal_cells, goal_cells | ~occupied, steps)  # (B, H, W)
         standoff = halo & explored & ~occupied  # (B, H, W) seen free cells beside the goal
         has_standoff = standoff.flatten(1).any(dim=1)[:, None, None]  # (B, 1, 1)
         goal_src = torch.where(has_standoff, standoff, goal_cells)  # (B, H, W)
