@@ -140,7 +140,7 @@ def test_s1_acts_on_the_latest_plan_between_ticks():
             NavPlan(np.zeros((0, 2)), "stop", 1.0, True),
         ]
     )
-    system.navigator.plan = lambda obs, likelihood, visible: next(plans)
+    system.navigator.plan = lambda obs, likelihood, visible, room_match: next(plans)
     model.reset()
     first = [model.select_action(_obs())[0].tolist() for _ in range(2)]
     assert first == [[0.0, 1.0, -1.0]] * 2  # the first plan's turn, held until the next tick
@@ -176,7 +176,7 @@ def test_learned_s1_reads_the_latest_plan_and_s2_runs_every_plan_every_steps():
     plans = iter(
         NavPlan(np.array([[1.0 + k, 0.5 * k]]), "explore", 0.1 * k, False) for k in range(4)
     )
-    system.navigator.plan = lambda obs, likelihood, visible: next(plans)
+    system.navigator.plan = lambda obs, likelihood, visible, room_match: next(plans)
     read = []  # the plan vector S1 read at each call
     act = follower.policy.act
 
@@ -324,3 +324,29 @@ def test_a_category_output_is_warm_started_from_a_goal_head_without_one(tmp_path
     assert "goal_head.category_logit.weight" in caplog.text
     rows = read_metrics(tmp_path / "runs" / "warm" / "metrics.jsonl")
     assert {"train/category_bce", "train/category_dice"} <= set(rows[0])
+
+
+def test_the_room_check_is_asked_once_per_s2_tick_and_reaches_the_navigator():
+    model = _model(
+        "model.dual_system.control_frequency_hz=10",
+        "model.dual_system.planning_frequency_hz=3.3",
+        "model.room_type.enabled=true",
+        "model.navigator.room_reject_threshold=0.5",
+    )
+    system = model.dual_system
+    assert system.room_match == model.room_match  # the policy's classifier is S2's check
+    probability = model.room_match({**_obs(), "instruction": "find the chair in the kitchen"})
+    assert 0.0 < probability < 1.0
+    assert model.room_match(_obs()) == 1.0  # "find the chair" names no room
+    asked = []
+    system.room_match = lambda obs: asked.append(obs["instruction"]) or 0.25
+    model.reset()
+    for _ in range(7):
+        model.select_action(_obs())
+    assert len(asked) == 3  # steps 0, 3, 6
+    assert list(system.navigator.room_matches) == [0.25, 0.25, 0.25]
+    # without the classifier S2 passes 1 on every tick
+    plain = _model()
+    assert plain.room_type is None and plain.dual_system.room_match is None
+    plain.select_action(_obs())
+    assert list(plain.dual_system.navigator.room_matches) == [1.0]

@@ -38,7 +38,13 @@ from vla_gr.configs.model_schema import ModelConfig
 from vla_gr.core.diffusion_policy import DiffusionPolicy
 from vla_gr.core.dual_system import S1Policy
 from vla_gr.core.encoders import PoseEncoder, RGBDEncoder, build_text_encoder, pose_features
-from vla_gr.core.grounding import GoalHead, goal_head_loss, mask_confusion
+from vla_gr.core.grounding import (
+    GoalHead,
+    RoomTypeClassifier,
+    goal_head_loss,
+    instructed_room,
+    mask_confusion,
+)
 from vla_gr.core.trajectory_attention import TransformerBlock
 from vla_gr.errors import ConfigError
 from vla_gr.policy.dual_system import GroundedDualSystem
@@ -292,11 +298,18 @@ class VLAGRPolicy(nn.Module):
 
     # ------------------------------------------------------------------ inference
     def _build_dual_system(self, c: ModelConfig) -> None:
-        """S2's goal head + the navigator on the GR field; S1 (the learned network is built
-        whatever ``s1.kind`` says, so that one checkpoint serves both S1 kinds)."""
+        """S2's goal head (and, with ``room_type.enabled``, its room-type classifier) + the
+        navigator on the GR field; S1 (the learned network is built whatever ``s1.kind``
+        says, so that one checkpoint serves both S1 kinds)."""
         self.goal_head = GoalHead(c.goal_head)
+        self.room_type = RoomTypeClassifier(c.room_type) if c.room_type.enabled else None
         self.s1 = S1Policy(c.s1)
-        self.dual_system = GroundedDualSystem.from_model_config(self.goal_likelihood, c, self.s1)
+        self.dual_system = GroundedDualSystem.from_model_config(
+            self.goal_likelihood,
+            c,
+            self.s1,
+            room_match=self.room_match if self.room_type is not None else None,
+        )
 
     @torch.no_grad()
     def goal_likelihood(self, obs: Mapping) -> tuple[np.ndarray, float]:
@@ -316,6 +329,18 @@ class VLAGRPolicy(nn.Module):
         )  # (1, H, W), (1,)
         self.last_goal_visible = float(visible[0])
         return pixels[0].float().cpu().numpy(), self.last_goal_visible  # (H, W), p
+
+    @torch.no_grad()
+    def room_match(self, obs: Mapping) -> float:
+        """S2's room check: the probability that the robot is in a room of the type the
+        instruction names; 1 when it names none (or the agent has no room classifier)."""
+        instruction = as_instructions(obs["instruction"], "obs['instruction']")[0]
+        index = instructed_room(instruction, self.config.room_type.room_types)
+        if index is None or self.room_type is None:
+            return 1.0
+        frame = env_obs_to_frame(obs, device=self.action_scale.device)
+        probs = self.room_type.probabilities(frame["rgb"], frame["depth"])  # (1, R)
+        return float(probs[0, index])
 
     def _dual_system_step(self, obs: Mapping) -> torch.Tensor:
         """One control step of the dual system (S2 every ``plan_every`` steps, S1 every step;

@@ -9,7 +9,9 @@ One control step of :class:`GroundedDualSystem` (batch 1, the env's observation)
 S2 = a goal-likelihood source (the learned goal head of
 :mod:`vla_gr.core.grounding`, or any callable; evaluation's privileged ablation passes the
 true mask) + :class:`~vla_gr.core.gr_field.Navigator` (map, masses, potential, metric,
-geodesic; look around, multi-tick confirmation, approach, verify, recover, stop). S1
+geodesic; look around, multi-tick confirmation, approach, verify, recover, stop), and, when
+given, a room check (``room_match``: how likely the robot is in the room the instruction
+names; the policy's room-type classifier, :mod:`vla_gr.core.grounding.room_type`). S1
 (``model.s1.kind``) = the learned :class:`~vla_gr.core.dual_system.LearnedFollower` (RGB-D +
 the plan -> action chunk and STOP) or :class:`~vla_gr.core.dual_system.PurePursuit`; both
 carry the plan's waypoints into the current robot frame by odometry between ticks. The
@@ -32,11 +34,14 @@ from vla_gr.core.dual_system import (
 )
 from vla_gr.core.gr_field import GRFieldConfig, Navigator, NavigatorConfig, NavPlan
 
-__all__ = ["GoalLikelihood", "GroundedDualSystem"]
+__all__ = ["GoalLikelihood", "GroundedDualSystem", "RoomMatch"]
 
 #: ``(obs) -> (H, W)`` per-pixel probability that the pixel shows the instructed object, or
 #: ``(obs) -> ((H, W), p)`` with ``p`` the probability that it is in view at all.
 GoalLikelihood = Callable[[Mapping], np.ndarray | tuple[np.ndarray, float]]
+#: ``(obs) -> p``: probability that the robot is in a room of the instructed type (1 when the
+#: instruction names no room).
+RoomMatch = Callable[[Mapping], float]
 
 
 class GroundedDualSystem:
@@ -48,6 +53,7 @@ class GroundedDualSystem:
         navigator, field, pursuit: configs of the navigator, its GR field and the follower.
         plan_every: control steps per S2 tick.
         s1: the learned S1 network; None = the pure-pursuit follower (``pursuit``).
+        room_match: S2's room check (see :data:`RoomMatch`); None = every tick passes 1.
     """
 
     def __init__(
@@ -58,8 +64,10 @@ class GroundedDualSystem:
         pursuit: PursuitConfig | None = None,
         plan_every: int = 1,
         s1: S1Policy | None = None,
+        room_match: RoomMatch | None = None,
     ) -> None:
         self.goal_likelihood = goal_likelihood
+        self.room_match = room_match
         self.navigator = Navigator(navigator, field, plan_every=plan_every)
         self.follower = PurePursuit(pursuit) if s1 is None else LearnedFollower(s1)
         self.plan_every = self.navigator.plan_every
@@ -70,7 +78,11 @@ class GroundedDualSystem:
 
     @classmethod
     def from_model_config(
-        cls, goal_likelihood: GoalLikelihood, model, s1: S1Policy | None = None
+        cls,
+        goal_likelihood: GoalLikelihood,
+        model,
+        s1: S1Policy | None = None,
+        room_match: RoomMatch | None = None,
     ) -> GroundedDualSystem:
         """Built from a ``ModelConfig``: ``navigator``, ``gr_field``, the S1 of ``s1.kind``
         (``s1`` is the learned network, used when the kind is ``learned``) and the S2 schedule
@@ -85,6 +97,7 @@ class GroundedDualSystem:
             pursuit=model.pursuit,
             plan_every=plan_interval(d.control_frequency_hz, d.planning_frequency_hz),
             s1=s1 if model.s1.kind == "learned" else None,
+            room_match=room_match,
         )
 
     def reset(self) -> None:
@@ -109,7 +122,8 @@ class GroundedDualSystem:
         }
 
     def plan_if_due(self, obs: Mapping) -> dict[str, float] | None:
-        """S2's part of a control step: on a planner tick, the goal likelihood and a new plan
+        """S2's part of a control step: on a planner tick, the goal likelihood (and the room
+        check) and a new plan
         (handed to the follower). Returns the tick's seconds (``s2``, ``s2_perception``,
         ``s2_navigator``), or None between ticks."""
         if self.steps % self.plan_every:
@@ -118,6 +132,7 @@ class GroundedDualSystem:
         depth = np.asarray(obs["depth"], dtype=np.float32)  # (H, W, 1)
         pose = np.asarray(obs["pose"], dtype=np.float64).reshape(3)  # (3,)
         perceived = self.goal_likelihood(obs)
+        room_match = 1.0 if self.room_match is None else float(self.room_match(obs))
         t_perceived = time.perf_counter()
         likelihood, visible = perceived if isinstance(perceived, tuple) else (perceived, 1.0)
         likelihood = np.asarray(likelihood, dtype=np.float32)  # (H, W)
@@ -125,7 +140,9 @@ class GroundedDualSystem:
             raise ValueError(
                 f"goal likelihood has shape {likelihood.shape}, expected {depth.shape[:2]}"
             )
-        self.plan = self.navigator.plan({"depth": depth, "pose": pose}, likelihood, visible)
+        self.plan = self.navigator.plan(
+            {"depth": depth, "pose": pose}, likelihood, visible, room_match
+        )
         self.follower.set_plan(self.plan, pose)
         self.last_likelihood = likelihood
         self.max_goal_confidence = max(self.max_goal_confidence, self.plan.goal_confidence)

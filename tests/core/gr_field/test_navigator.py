@@ -381,3 +381,42 @@ def test_rejecting_at_a_cell_outside_any_confirmed_goal_rejects_only_its_neighbo
     nav._reject_goal(np.array([(20 + 0.5) * h, (20 + 0.5) * h]))  # cell (20, 20): no goal
     assert nav.rejected.sum() == 25 and nav.rejected[18:23, 18:23].all()
     assert nav.goal_votes[40:42, 36:38].min() == 5 and nav.goal_votes[10, 10] == 1
+
+
+def test_the_room_check_rejects_a_goal_in_another_room_and_stops_in_the_right_one():
+    near = (ROOM[1] - 0.6, 0.0, 0.0)  # 0.6 m from the wall the likelihood marks
+    like = wall_goal(room_depth(near))
+
+    def run(room_match, threshold=0.5, ticks=4):
+        nav = make_nav(look_around_angle=0.0, stop_distance=0.8, room_reject_threshold=threshold,
+                       room_ticks=2)  # fmt: skip
+        depth = room_depth(near)
+        plans = [
+            nav.plan({"depth": depth, "pose": np.array(near, np.float32)}, like, 1.0, m)
+            for m in room_match[:ticks]
+        ]
+        return nav, plans
+
+    # confidently in another room: the goal is rejected on the tick it is confirmed and near
+    nav, plans = run([0.1, 0.1, 0.1, 0.1])
+    assert not any(p.stop for p in plans)
+    assert nav.rejections == 1 and plans[1].mode == "explore" and nav.rejected.any()
+    # the mean of the last room_ticks decides: one doubtful frame after a good one still stops
+    nav, plans = run([0.9, 0.2])
+    assert plans[1].stop and nav.rejections == 0
+    assert nav.stop_evidence["room_match"] == pytest.approx(0.55)
+    # below the threshold on the mean: rejected
+    nav, plans = run([0.3, 0.2])
+    assert not plans[1].stop and nav.rejections == 1
+    # off (0): the same evidence stops
+    nav, plans = run([0.1, 0.1], threshold=0.0)
+    assert plans[1].stop and nav.rejections == 0
+
+
+@pytest.mark.parametrize(
+    "overrides, key",
+    [({"room_reject_threshold": 1.5}, "room_reject_threshold"), ({"room_ticks": 0}, "room_ticks")],
+)
+def test_room_check_settings_out_of_range_name_the_key(overrides, key):
+    with pytest.raises(ValueError, match=f"model.navigator.{key}"):
+        NavigatorConfig(**overrides)

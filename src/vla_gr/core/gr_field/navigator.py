@@ -13,7 +13,9 @@ Modes and transitions (checked in this order every tick)::
                  path ends here), in line of sight, goal pixels in view now and (with
                  stop_visible_threshold) the goal head's "goal visible" probability this high
     verify       the same but not (yet) verified: turn towards it (verify_steps at most); then
-                 stop anyway, or with stop_visible_threshold reject that goal and explore on
+                 stop anyway, or with stop_visible_threshold reject that goal and explore on;
+                 a goal near which the robot is confidently not in the instructed room
+                 (room_reject_threshold) is rejected before either
     approach     a confirmed goal: follow the field's geodesic to its stand-off; a goal the
                  robot has stood at the end of the path to for dead_end_steps without being
                  able to stop (not within stop distance in line of sight) is rejected
@@ -24,7 +26,11 @@ Multi-frame confirmation: a map cell becomes a goal for the field (``GRField.upd
 single false positive never attracts. Approach-and-verify: with ``stop_visible_threshold`` a
 STOP also needs the goal head's per-frame "goal visible" probability, seen from close range; a
 goal that never reaches it within ``verify_steps`` is rejected: its cells lose their votes and
-cast none again, and the robot explores on. The same happens to a dead end: a goal whose path
+cast none again, and the robot explores on. Room check: for an instruction that names a room,
+each tick also gets the probability that the robot stands in a room of that type
+(:mod:`vla_gr.core.grounding.room_type`); near a confirmed goal, a mean over the last
+``room_ticks`` ticks below ``room_reject_threshold`` rejects the goal the same way (a
+same-category twin in another room). The same happens to a dead end: a goal whose path
 ends where the robot stands but which is not in line of sight within the stop distance (the
 head fired on something behind furniture or a wall), which would otherwise hold the robot
 there until the step budget runs out. Blocked: the plan wanted to drive ahead (its pursuit
@@ -82,6 +88,10 @@ class NavigatorConfig:
     # approach-and-verify: the "goal visible" probability a STOP needs at the goal; a goal
     # that does not reach it within verify_steps is rejected (0 = off: goal pixels suffice)
     stop_visible_threshold: float = 0.0
+    # room instructions: near a confirmed goal, reject it when the mean probability over the
+    # last room_ticks ticks that the robot is in a room of the instructed type is below this
+    room_reject_threshold: float = 0.0  # 0 = off
+    room_ticks: int = 3
     confirm_ticks: int = 2  # ticks with goal votes before a cell is a goal
     min_goal_pixels: int = 3  # goal pixels for "the goal is in view now"
     stop_distance: float = 0.8  # m from the robot centre to a confirmed goal cell
@@ -133,7 +143,7 @@ class NavigatorConfig:
             if not getattr(self, key) >= 0:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 0")
         for key in ("confirm_ticks", "min_goal_pixels", "verify_steps", "stuck_steps",
-                    "blocked_steps", "no_path_steps", "tight_steps"):  # fmt: skip
+                    "blocked_steps", "no_path_steps", "tight_steps", "room_ticks"):  # fmt: skip
             if int(getattr(self, key)) < 1:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 1")
         for key in ("recover_back_steps", "recover_turn_steps", "dead_end_steps",
@@ -143,7 +153,7 @@ class NavigatorConfig:
         for key in ("turn_rate", "recover_back_speed", "pixel_threshold", "tight_speed"):
             if not 0.0 < getattr(self, key) <= 1.0:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be in (0, 1]")
-        for key in ("visible_threshold", "stop_visible_threshold"):
+        for key in ("visible_threshold", "stop_visible_threshold", "room_reject_threshold"):
             if not 0.0 <= getattr(self, key) <= 1.0:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be in [0, 1]")
 
@@ -215,12 +225,15 @@ class Navigator:
         self.ever_seen_goal = False
         self.tick_goal_pixels = 0  # goal pixels of this tick that landed on the map
         self.stop_evidence: dict[str, float] = {}  # what S2 saw on the tick it asked to STOP
+        self.room_matches: deque[float] = deque(maxlen=self.config.room_ticks)  # last ticks'
         self.last_output = None
         self.last_latency = 0.0
 
     # ------------------------------------------------------------------ tick
 
-    def plan(self, obs: dict, goal_likelihood, goal_visible: float = 1.0) -> NavPlan:
+    def plan(
+        self, obs: dict, goal_likelihood, goal_visible: float = 1.0, room_match: float = 1.0
+    ) -> NavPlan:
         """One planner tick.
 
         Args:
@@ -230,6 +243,8 @@ class Navigator:
                 instructed object.
             goal_visible: probability that the instructed object is in view at all (the goal
                 head's per-frame output); below ``visible_threshold`` the tick casts no votes.
+            room_match: probability that the robot stands in a room of the type the
+                instruction names (1 when it names none); see ``room_reject_threshold``.
         """
         t0 = time.perf_counter()
         cfg = self.config
@@ -239,6 +254,7 @@ class Navigator:
         pose = torch.as_tensor(np.asarray(obs["pose"], np.float32)).reshape(1, 3)  # (1, 3)
         like = torch.as_tensor(np.asarray(goal_likelihood, np.float32)).reshape(depth.shape)
         votes_allowed = float(goal_visible) >= cfg.visible_threshold
+        self.room_matches.append(float(room_match))
         self.tick_goal_pixels = 0  # set by _vote; stays 0 on a tick that casts no votes
         visible = votes_allowed and self._vote(depth, pose, like)  # goal pixels in view now
         confirmed = self.goal_votes >= cfg.confirm_ticks  # (H, W)
@@ -291,6 +307,8 @@ class Navigator:
         )
         near = distance <= (cfg.stop_distance_at_end if at_end else cfg.stop_distance)
         if self.committed and near:
+            if self._wrong_room():
+                return self._abandon_goal(nearest)
             verified = float(goal_visible) >= cfg.stop_visible_threshold
             if visible and verified:
                 return NavPlan(np.zeros((0, 2)), "stop", 0.0, True)
@@ -362,6 +380,11 @@ class Navigator:
         self.rejections += 1
         logger.debug("navigator: goal at cell %s rejected", (row, col))
 
+    def _wrong_room(self) -> bool:
+        """The room check: the last ticks say the robot is not in the instructed room."""
+        threshold = self.config.room_reject_threshold
+        return threshold > 0.0 and float(np.mean(self.room_matches)) < threshold
+
     def _abandon_goal(self, nearest: np.ndarray) -> NavPlan:
         """Reject the committed goal nearest ``nearest`` (2,), reset the counters that led
         here (verification, dead end) and turn in place to explore on."""
@@ -388,6 +411,7 @@ class Navigator:
             "max_votes": int(votes.max()) if votes.size else 0,
             "total_votes": int(votes.sum()),
             "distance": round(float(distance), 3),
+            "room_match": round(float(np.mean(self.room_matches)), 4),
             "tick": int(self.ticks),
         }
 

@@ -1,4 +1,5 @@
-"""Language grounding for S2: the goal head (pixels of the instructed object) and its losses."""
+"""Language grounding for S2: the goal head (pixels of the instructed object), its losses,
+and the room-type check of room instructions."""
 
 from vla_gr.core.grounding.goal_head import GoalHead, GoalHeadConfig
 from vla_gr.core.grounding.losses import (
@@ -8,13 +9,17 @@ from vla_gr.core.grounding.losses import (
     mask_confusion,
     visible_targets,
 )
+from vla_gr.core.grounding.room_type import RoomTypeClassifier, RoomTypeConfig, instructed_room
 
 __all__ = [
     "GoalHead",
     "GoalHeadConfig",
     "GroundingConfig",
+    "RoomTypeClassifier",
+    "RoomTypeConfig",
     "confusion_metrics",
     "goal_head_loss",
+    "instructed_room",
     "mask_confusion",
     "visible_targets",
 ]

@@ -27,7 +27,7 @@ from vla_gr.core.encoders import TEXT_ENCODERS, build_text_encoder
 from vla_gr.geometry.robot_spec import MAX_DEPTH
 from vla_gr.validation import check_choice, check_positive
 
-__all__ = ["GoalHead", "GoalHeadConfig"]
+__all__ = ["GoalHead", "GoalHeadConfig", "rgbd_inputs"]
 
 
 @dataclass
@@ -57,11 +57,21 @@ class GoalHeadConfig:
             check_positive(f"model.goal_head.{key}", getattr(self, key))
 
 
-def _groups(channels: int) -> int:
+def norm_groups(channels: int) -> int:
+    """GroupNorm groups for ``channels``: up to 8, about 4 channels each, dividing evenly."""
     g = max(1, min(8, channels // 4))
     while channels % g:
         g -= 1
     return g
+
+
+def rgbd_inputs(rgb: torch.Tensor, depth: torch.Tensor, max_depth: float) -> torch.Tensor:
+    """rgb (B, 3, H, W) uint8 or [0, 1] and depth (B, 1, H, W) metres -> (B, 4, H, W) in
+    [-1, 1], depth clipped to ``max_depth``."""
+    if rgb.dtype == torch.uint8:
+        rgb = rgb.float() / 255.0
+    d = depth.float().clamp(0.0, max_depth) / max_depth  # (B, 1, H, W)
+    return torch.cat([rgb.float() * 2.0 - 1.0, d * 2.0 - 1.0], dim=1)  # (B, 4, H, W)
 
 
 def _mean_with_mirror(v: torch.Tensor) -> torch.Tensor:
@@ -79,12 +89,12 @@ class _FiLMConv(nn.Module):
     def __init__(self, c_in: int, c_out: int, text_dim: int, stride: int = 1) -> None:
         super().__init__()
         self.conv1 = nn.Conv2d(c_in, c_out, 3, stride=stride, padding=1)
-        self.norm1 = nn.GroupNorm(_groups(c_out), c_out)
+        self.norm1 = nn.GroupNorm(norm_groups(c_out), c_out)
         self.film = nn.Linear(text_dim, 2 * c_out)
         nn.init.zeros_(self.film.weight)
         nn.init.zeros_(self.film.bias)
         self.conv2 = nn.Conv2d(c_out, c_out, 3, padding=1)
-        self.norm2 = nn.GroupNorm(_groups(c_out), c_out)
+        self.norm2 = nn.GroupNorm(norm_groups(c_out), c_out)
 
     def forward(self, x: torch.Tensor, text: torch.Tensor) -> torch.Tensor:
         """x (B, C_in, H, W), text (B, E) -> (B, C_out, H / s, W / s)."""
@@ -137,10 +147,7 @@ class GoalHead(nn.Module):
         H, W = rgb.shape[2:]
         if H % self.stride or W % self.stride:
             raise ValueError(f"image sides {(H, W)} must be divisible by {self.stride}")
-        if rgb.dtype == torch.uint8:
-            rgb = rgb.float() / 255.0
-        d = depth.float().clamp(0.0, self.config.max_depth) / self.config.max_depth
-        return torch.cat([rgb.float() * 2.0 - 1.0, d * 2.0 - 1.0], dim=1)  # (B, 4, H, W)
+        return rgbd_inputs(rgb, depth, self.config.max_depth)  # (B, 4, H, W)
 
     def forward(
         self, rgb: torch.Tensor, depth: torch.Tensor, instructions: Sequence[str]
