@@ -21,7 +21,6 @@ import argparse
 import json
 import logging
 import os
-import shutil
 import sys
 import time
 from collections.abc import Sequence
@@ -30,9 +29,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from vla_gr.checkpoint import load_model_state, read_checkpoint, save_checkpoint
 from vla_gr.core.dual_system.s1_inputs import PlanMemory
 from vla_gr.errors import UserError
+from vla_gr.training.agent_stage import build_agent_from, write_agent
 from vla_gr.training.optim import build_optimizer, build_scheduler
 from vla_gr.training.s1_data import load_s1_data
 
@@ -91,37 +90,6 @@ def plans_without_s2(episode: np.ndarray, s1) -> np.ndarray:
     return np.stack([memory.vector(zero, t) for t in range(int(step.max()) + 1)])[step]
 
 
-def _build_policy(init: str, settings: Sequence[str], init_s1: bool):
-    """The agent of ``init`` with ``model.s1`` changed by ``settings``; its S2 weights loaded."""
-    from omegaconf import OmegaConf
-
-    from vla_gr.configs.model_schema import ModelConfig
-    from vla_gr.policy.agent import VLAGRPolicy
-    from vla_gr.policy.frames import apply_peft
-
-    for item in settings:
-        if "=" not in item or not item.split("=", 1)[0].strip().startswith("s1."):
-            raise UserError(f"S1 setting {item!r} must be key=value with a key under s1.")
-    loaded = read_checkpoint(init)
-    config = OmegaConf.create(loaded.config_yaml)
-    if config.model.get("agent") != "dual_system":
-        raise UserError(f"{init} is not a dual-system agent (model.agent={config.model.agent})")
-    if "s1" in config.model and "head" in config.model.s1:
-        # the head's context width follows s1.dim: a saved width must not pin a new dim
-        config.model.s1.head.context_dim = None
-    merged = OmegaConf.merge(
-        OmegaConf.structured(ModelConfig),
-        config.model,
-        OmegaConf.from_dotlist([*settings, "s1.kind=learned"]),
-    )
-    policy = apply_peft(VLAGRPolicy(OmegaConf.to_object(merged)), merged.peft)
-    fresh = {k: v for k, v in policy.state_dict().items() if k.startswith("s1.")}
-    tensors = {k: v for k, v in loaded.model.items() if not k.startswith("s1.") or init_s1}
-    load_model_state(policy, {**fresh, **tensors}, str(init))
-    config.model = merged
-    return policy, loaded, config
-
-
 def _validate(policy, batches: S1Batches, batch_size: int) -> dict[str, float]:
     """Mean losses on ``batches``; the noise comes from fixed seeds in a forked RNG, so
     validations are comparable and the training randomness is untouched."""
@@ -157,7 +125,9 @@ def train_s1(
 ) -> dict:
     """Train S1 and write the agent with the best S1 to ``out``; returns the summary."""
     torch.manual_seed(seed)
-    policy, loaded, config = _build_policy(str(init), settings, init_s1)
+    policy, loaded, config = build_agent_from(
+        init, "s1", settings, keep_part=init_s1, forced=["s1.kind=learned"]
+    )
     s1_config = policy.config.s1
     arrays = load_s1_data(data, s1_config)
     if not s1_config.use_s2:  # the "without S2" ablation: S1 reads no plan, as at inference
@@ -206,29 +176,9 @@ def train_s1(
                 best_state = {k: v.clone() for k, v in policy.s1.state_dict().items()}
     policy.s1.load_state_dict(best_state)
     summary = {"best_val_loss": best, "history": history, "data": [str(d) for d in data]}
-    _write_agent(policy, loaded, config, Path(out), steps, summary)
-    return summary
-
-
-def _write_agent(policy, loaded, config, out: Path, steps: int, summary: dict) -> None:
-    from omegaconf import OmegaConf
-
-    from vla_gr.policy.agent import VLAGRPolicy
-
-    state = {k: v for k, v in loaded.state.items() if k != "rng"}
-    state.update(s1_training=summary, s1_steps=steps)
-    staging = out.parent / f".s1-{out.name}-{os.getpid()}"
-    tensors = {k: v.detach().contiguous() for k, v in policy.state_dict().items()}
-    written = save_checkpoint(
-        staging, int(loaded.state.get("step", 0)), tensors, state, OmegaConf.to_yaml(config),
-        links=(),
-    )  # fmt: skip
-    if out.exists():
-        shutil.rmtree(out)
-    os.replace(written, out)
-    shutil.rmtree(staging)
-    VLAGRPolicy.from_pretrained(out)  # the result verifies and loads
+    write_agent(policy, loaded, config, out, {"s1_training": summary, "s1_steps": steps})
     log.info("wrote %s", out)
+    return summary
 
 
 def main(argv: Sequence[str] | None = None) -> int:
