@@ -190,3 +190,21 @@ def test_env_kwargs_cover_every_env_config_key():
     keys = {f.name for f in dataclasses.fields(EnvConfig)}
     # split is the function's argument; episodes is passed only when a file is named
     assert keys - set(kwargs) == {"episodes"}
+
+
+def test_an_index_whose_house_hosts_no_episode_is_skipped_and_reported(tmp_path, caplog):
+    from vla_gr.data.collect import collect
+    from vla_gr.envs.episodes import NoEpisodeError, sample_episode
+
+    with pytest.raises(NoEpisodeError, match="house 1585 has no goal candidates"):
+        sample_episode("train", 6340)  # house 1585: no goal with a distractor
+    _, cfg = load_config(
+        "config_debug",
+        [f"collect.output={tmp_path / 's.zarr'}", "collect.split=train",
+         "collect.first_episode=6339", "collect.num_episodes=2"],
+    )  # fmt: skip
+    with caplog.at_level("WARNING", logger="vla_gr.data.collect"):
+        summary = collect(cfg)
+    assert summary["episodes"] == 1 and summary["skipped"] == [6340]
+    assert EpisodeStore.open(tmp_path / "s.zarr").episode_indices.tolist() == [6339]
+    assert "episode 6340 skipped" in caplog.text

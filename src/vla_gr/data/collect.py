@@ -125,8 +125,15 @@ def _init_worker(env_kwargs: dict, expert_kwargs: dict, seed: int) -> None:
     _WORKER.update(env=env, expert=GeodesicExpert(env, **expert_kwargs), seed=seed)
 
 
-def _work(index: int) -> EpisodeRecord:
-    record, _ = run_expert_episode(_WORKER["env"], _WORKER["expert"], index, _WORKER["seed"])
+def _work(index: int) -> EpisodeRecord | int:
+    """The record of episode ``index``, or the index itself when its house cannot host one."""
+    from vla_gr.envs.episodes import NoEpisodeError
+
+    try:
+        record, _ = run_expert_episode(_WORKER["env"], _WORKER["expert"], index, _WORKER["seed"])
+    except NoEpisodeError as err:
+        log.warning("episode %d skipped: %s", index, err)
+        return index
     return record
 
 
@@ -164,7 +171,8 @@ def map_in_workers(
 def iter_expert_episodes(
     indices: Sequence[int], env_kwargs: dict, expert_kwargs: dict, seed: int = 0, workers: int = 1
 ) -> Iterator[EpisodeRecord]:
-    """Records of episodes ``indices``, in that order, from ``workers`` spawned processes.
+    """Records of episodes ``indices``, in that order, from ``workers`` spawned processes;
+    an index whose house cannot host an episode (``NoEpisodeError``) comes back as the int.
 
     With ``workers == 1`` everything runs in this process.
     """
@@ -234,21 +242,26 @@ def collect(cfg) -> dict:
         )
     t0 = time.perf_counter()
     frames, metrics = 0, []
-    records: Iterable[EpisodeRecord] = iter_expert_episodes(
+    skipped: list[int] = []
+    records: Iterable[EpisodeRecord | int] = iter_expert_episodes(
         todo, env_kwargs, expert_kwargs, cfg.seed, c.workers
     )
     bar = tqdm(total=len(todo), desc=f"collect {c.split}", unit="ep", disable=not c.progress)
     with bar:
         for record in records:
+            bar.update(1)
+            if isinstance(record, int):
+                skipped.append(record)
+                continue
             store.append(record)
             frames += len(record)
             metrics.append(record.metrics)
-            bar.update(1)
             bar.set_postfix(frames=frames)
     elapsed = time.perf_counter() - t0
     summary = {
         "store": str(path),
         "episodes": len(metrics),
+        "skipped": skipped,  # indices whose house cannot host an episode
         "frames": frames,
         "seconds": elapsed,
         "frames_per_s": frames / elapsed if elapsed > 0 else 0.0,

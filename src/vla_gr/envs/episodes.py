@@ -41,6 +41,11 @@ class EpisodeFileError(UserError, ValueError):
     """An episodes file that is missing, empty or holds a bad line (named by number)."""
 
 
+class NoEpisodeError(ValueError):
+    """A split index whose house cannot host an episode: no goal with a distractor and a
+    unique description, or no start at a valid distance from any goal (rare)."""
+
+
 @dataclass(frozen=True)
 class EpisodeSpec:
     """One ObjectNav episode. Poses are in world metres / radians."""
@@ -151,7 +156,7 @@ def sample_episode_in_house(
     rng = episode_rng(split, index)
     candidates = list(goal_candidates(house))
     if not candidates:
-        raise ValueError(f"house {house.seed} has no goal candidates")
+        raise NoEpisodeError(f"house {house.seed} has no goal candidates")
     order = rng.permutation(len(candidates))
     for k in order[:max_goal_tries]:
         goal_id = int(candidates[k])
@@ -175,7 +180,7 @@ def sample_episode_in_house(
             instruction=instruction,
             geodesic_start_distance=dist,
         )
-    raise ValueError(
+    raise NoEpisodeError(
         f"no start {MIN_START_DISTANCE}-{MAX_START_DISTANCE} m from any goal in house {house.seed}"
     )
 
