@@ -17,10 +17,23 @@ from vla_gr.envs.episodes import EpisodeSpec
 from vla_gr.envs.house import generate_house
 from vla_gr.errors import UserError
 from vla_gr.policy import VLAGRPolicy
+from vla_gr.training.agent_stage import build_agent_from, write_agent
 from vla_gr.training.room_type import _frame_rooms, room_accuracy, room_frames, train_room_type
+from vla_gr.training.room_type import main as room_type_main
 
 SHIPPED = Path(__file__).resolve().parents[2] / "checkpoints" / "vla_gr_cpu"
 ROOMS = ["kitchen", "living_room", "bedroom", "bathroom", "office", "hallway"]
+
+
+@pytest.fixture(scope="module")
+def plain(tmp_path_factory) -> Path:
+    """The shipped agent without a room-type classifier (whether or not it ships one)."""
+    out = tmp_path_factory.mktemp("plain") / "agent"
+    policy, loaded, config = build_agent_from(
+        SHIPPED, "room_type", [], keep_part=False, forced=["room_type.enabled=false"]
+    )
+    assert policy.room_type is None
+    return write_agent(policy, loaded, config, out, {})
 
 
 @pytest.fixture(scope="module")
@@ -62,10 +75,12 @@ def test_room_frames_keeps_every_stride_th_labelled_frame(store):
         room_frames(store, ROOMS, first=4)
 
 
-def test_trained_classifier_is_written_with_the_room_check_and_the_rest_untouched(store, tmp_path):
+def test_trained_classifier_is_written_with_the_room_check_and_the_rest_untouched(
+    store, plain, tmp_path
+):
     frames = room_frames(store, ROOMS, stride=2)
     out = tmp_path / "agent"
-    summary = train_room_type(SHIPPED, out, frames, ROOMS, steps=4, batch_size=16,
+    summary = train_room_type(plain, out, frames, ROOMS, steps=4, batch_size=16,
                               eval_every=2, reject_threshold=0.3, eval_frames=frames)  # fmt: skip
     assert [row["step"] for row in summary["history"]] == [2, 4]
     assert summary["best_val_accuracy"] == max(r["accuracy"] for r in summary["history"])
@@ -73,7 +88,7 @@ def test_trained_classifier_is_written_with_the_room_check_and_the_rest_untouche
     written = read_checkpoint(out)
     model = OmegaConf.create(written.config_yaml).model
     assert model.room_type.enabled and model.navigator.room_reject_threshold == 0.3
-    init = read_checkpoint(SHIPPED).model
+    init = read_checkpoint(plain).model
     for name, value in init.items():
         assert torch.equal(written.model[name], value), name  # the rest bit for bit
     assert {k for k in written.model if k not in init} == {
@@ -95,15 +110,23 @@ def test_trained_classifier_is_written_with_the_room_check_and_the_rest_untouche
     kitchen = policy.room_match({**obs, "instruction": "find the chair in the kitchen"})
     assert kitchen == pytest.approx(float(probs[0]))
     # an agent without the classifier passes every room
-    assert (
-        VLAGRPolicy.from_pretrained(SHIPPED).room_match(
-            {**obs, "instruction": "find the chair in the kitchen"}
-        )
-        == 1.0
-    )
+    kitchen_obs = {**obs, "instruction": "find the chair in the kitchen"}
+    assert VLAGRPolicy.from_pretrained(plain).room_match(kitchen_obs) == 1.0
+    # the classifier grafted onto an agent (the CLI): its weights, the rest of the agent's
+    grafted = tmp_path / "grafted"
+    args = [str(plain), str(grafted), "--classifier-from", str(out), "--reject-threshold", "0.4"]
+    assert room_type_main(args) == 0
+    again = read_checkpoint(grafted)
+    assert again.model.keys() == written.model.keys()
+    for name, value in written.model.items():
+        assert torch.equal(again.model[name], value), name
+    model = OmegaConf.create(again.config_yaml).model
+    assert model.room_type.enabled and model.navigator.room_reject_threshold == 0.4
+    refused = [str(plain), str(tmp_path / "no"), "--classifier-from", str(plain)]
+    assert room_type_main(refused) == 2  # a donor without a classifier
 
 
-def test_frames_labelled_in_other_room_types_are_refused(store, tmp_path):
+def test_frames_labelled_in_other_room_types_are_refused(store, plain, tmp_path):
     frames = room_frames(store, ROOMS, stride=4)
     with pytest.raises(UserError, match="frames are labelled in"):
-        train_room_type(SHIPPED, tmp_path / "x", frames, ROOMS[::-1], steps=1)
+        train_room_type(plain, tmp_path / "x", frames, ROOMS[::-1], steps=1)

@@ -10,21 +10,27 @@ from __future__ import annotations
 
 import os
 import shutil
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from vla_gr.checkpoint import load_model_state, read_checkpoint, save_checkpoint
 from vla_gr.errors import UserError
 
-__all__ = ["build_agent_from", "write_agent"]
+__all__ = ["build_agent_from", "graft_part", "write_agent"]
 
 
 def build_agent_from(
-    init: str | Path, part: str, settings: Sequence[str], keep_part: bool, forced: Sequence[str]
+    init: str | Path,
+    part: str,
+    settings: Sequence[str],
+    keep_part: bool,
+    forced: Sequence[str],
+    part_config: Mapping | None = None,
 ):
-    """The agent of checkpoint ``init`` with ``model.<part>`` changed by ``settings`` (each
-    ``key=value`` with a key under ``<part>.``) and then ``forced``; every weight is loaded
-    from ``init`` except, unless ``keep_part``, those of ``part`` (fresh).
+    """The agent of checkpoint ``init`` with ``model.<part>`` replaced by ``part_config`` (if
+    given), changed by ``settings`` (each ``key=value`` with a key under ``<part>.``) and then
+    ``forced``; every weight is loaded from ``init`` except, unless ``keep_part``, those of
+    ``part`` (fresh).
 
     Returns ``(policy, loaded checkpoint, its config with the merged model)``.
     """
@@ -47,6 +53,7 @@ def build_agent_from(
     merged = OmegaConf.merge(
         OmegaConf.structured(ModelConfig),
         config.model,
+        {} if part_config is None else {part: part_config},
         OmegaConf.from_dotlist([*settings, *forced]),
     )
     policy = apply_peft(VLAGRPolicy(OmegaConf.to_object(merged)), merged.peft)
@@ -81,3 +88,29 @@ def write_agent(policy, loaded, config, out: str | Path, state_updates: dict) ->
     shutil.rmtree(staging)
     VLAGRPolicy.from_pretrained(out)  # the result verifies and loads
     return out
+
+
+def graft_part(
+    init: str | Path, donor: str | Path, part: str, out: str | Path, settings: Sequence[str] = ()
+) -> Path:
+    """Write to ``out`` the agent of ``init`` with ``model.<part>`` and its weights taken from
+    checkpoint ``donor`` (e.g. a room-type classifier trained beside another goal head).
+
+    ``settings`` are ``model.*`` keys without the prefix, applied last
+    (``navigator.room_reject_threshold=0.2``)."""
+    from omegaconf import OmegaConf
+
+    given = read_checkpoint(donor)
+    donor_model = OmegaConf.create(given.config_yaml).model
+    if part not in donor_model:
+        raise UserError(f"{donor} has no model.{part} to take")
+    policy, loaded, config = build_agent_from(
+        init, part, [], keep_part=False, forced=[], part_config=donor_model[part]
+    )
+    prefix = f"{part}."
+    tensors = {k[len(prefix) :]: v for k, v in given.model.items() if k.startswith(prefix)}
+    if not tensors:
+        raise UserError(f"{donor} holds no {part} weights")
+    getattr(policy, part).load_state_dict(tensors)
+    config.model = OmegaConf.merge(config.model, OmegaConf.from_dotlist(list(settings)))
+    return write_agent(policy, loaded, config, out, {f"{part}_from": str(donor)})

@@ -10,6 +10,9 @@ the agent with ``model.room_type.enabled=true`` and the room check on
 
     python -m vla_gr.training.room_type checkpoints/vla_gr_cpu outputs/room_type/agent \
         --store data/big3.zarr --episodes 1200 --stride 8 --eval-store data/expert_val60.zarr
+    # the same classifier on another goal head (it reads frames only):
+    python -m vla_gr.training.room_type outputs/train/<run>/checkpoints/latest out/ \
+        --classifier-from outputs/room_type/agent
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ import torch
 import torch.nn.functional as F
 
 from vla_gr.errors import UserError
-from vla_gr.training.agent_stage import build_agent_from, write_agent
+from vla_gr.training.agent_stage import build_agent_from, graft_part, write_agent
 from vla_gr.training.optim import build_optimizer, build_scheduler
 
 log = logging.getLogger(__name__)
@@ -229,7 +232,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog=prog, description=__doc__)
     parser.add_argument("init", help="the dual-system agent checkpoint (kept but the classifier)")
     parser.add_argument("out", help="the checkpoint folder to write (replaced)")
-    parser.add_argument("--store", required=True, help="expert store with the training frames")
+    parser.add_argument("--store", help="expert store with the training frames")
+    parser.add_argument(
+        "--classifier-from", default=None, help="take this checkpoint's classifier, no training"
+    )
     parser.add_argument("--first", type=int, default=0, help="first stored episode to read")
     parser.add_argument("--episodes", type=int, default=None, help="stored episodes to read")
     parser.add_argument("--stride", type=int, default=8, help="every stride-th frame")
@@ -245,6 +251,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     torch.set_num_threads(max(1, min(2, os.cpu_count() or 1)))
     try:
+        if args.classifier_from:
+            threshold = f"navigator.room_reject_threshold={args.reject_threshold}"
+            graft_part(args.init, args.classifier_from, "room_type", args.out, [threshold])
+            return 0
+        if not args.store:
+            raise UserError("--store is required unless --classifier-from names a checkpoint")
         room_types = _room_types(args.set)
         frames = room_frames(args.store, room_types, args.first, args.episodes, args.stride)
         eval_frames = (
