@@ -17,6 +17,9 @@ SHIPPED = Path(__file__).resolve().parents[2] / "checkpoints" / "vla_gr_cpu"
 def test_shipped_checkpoint_is_the_dual_system_and_small():
     policy = VLAGRPolicy.from_pretrained(SHIPPED)  # verifies the SHA-256 manifest
     assert policy.config.agent == "dual_system" and policy.dual_system.plan_every == 3
+    # S2's room check is on: a trained room-type classifier and a rejection threshold
+    assert policy.room_type is not None and policy.dual_system.room_match == policy.room_match
+    assert 0.0 < policy.config.navigator.room_reject_threshold < 0.5
     size = sum(f.stat().st_size for f in SHIPPED.rglob("*") if f.is_file())
     assert size <= 20 * 2**20
 
