@@ -122,6 +122,19 @@ def test_true_mask_on_a_checkpoint_uses_its_dual_system(dual, tmp_path):
         check_agent("true_mask", eval_cfg(f"checkpoint={e2e}"))
 
 
+def test_true_category_runs_the_checkpoints_room_check_and_true_mask_needs_none(tmp_path):
+    room = write_checkpoint(
+        tmp_path, "model.agent=dual_system", "model.room_type.enabled=true",
+        "model.navigator.room_reject_threshold=0.2",
+    )  # fmt: skip
+    world = Namespace(unwrapped=Namespace())
+    agent = TrueCategoryAgent(eval_cfg(f"checkpoint={room}"), world)
+    assert agent.policy.room_type is not None
+    assert agent.system.room_match == agent.policy.room_match
+    # the ceiling knows the goal's pixels: nothing to check
+    assert make_agent("true_mask", eval_cfg(f"checkpoint={room}"), world).system.room_match is None
+
+
 def test_true_category_keeps_the_goal_heads_pixels_on_the_goal_category_only(dual, tmp_path):
     chair, other_chair, table = (Namespace(instance_id=i, category=c) for i, c in
                                  ((3, "chair"), (5, "chair"), (7, "table")))  # fmt: skip

@@ -253,7 +253,8 @@ class TrueCategoryAgent(TrueMaskAgent):
     goal's category (from the env's ``semantic`` observation): the goal head still has to pick
     the instructed instance among same-category ones, but never fires on another category.
     Between ``checkpoint`` and ``true_mask`` it tells how much of the gap is category
-    recognition. Needs a dual-system ``eval.checkpoint`` (with ``eval.model_overrides``).
+    recognition. Needs a dual-system ``eval.checkpoint`` (with ``eval.model_overrides``); its
+    room check, if it has one, runs as in the checkpoint's agent.
     """
 
     name = "true_category"
@@ -265,8 +266,9 @@ class TrueCategoryAgent(TrueMaskAgent):
             raise AgentError("agent=true_category gates a checkpoint's goal head; give checkpoint=")
         self.env = env
         self.policy = checkpoint_policy(cfg, dual_system=True, agent=self.name)
+        room_match = self.policy.room_match if self.policy.room_type is not None else None
         self.system = GroundedDualSystem.from_model_config(
-            self._gated, self.policy.config, self.policy.s1
+            self._gated, self.policy.config, self.policy.s1, room_match=room_match
         )
 
     def _gated(self, obs) -> tuple[np.ndarray, float]:
