@@ -33,7 +33,7 @@ from vla_gr.core.grounding import instructed_room
 from vla_gr.data.store import EpisodeStore
 from vla_gr.machine import describe_machine
 from vla_gr.policy import VLAGRPolicy
-from vla_gr.training.room_type import _frame_rooms, room_accuracy, room_frames
+from vla_gr.training.room_type import frame_rooms, room_accuracy, room_frames
 
 logger = logging.getLogger("bench_room_check")
 
@@ -51,7 +51,7 @@ def windows(store: EpisodeStore, classifier, room_types, ticks: int, plan_every:
             continue
         frames = store.episode(e, ["rgb", "depth", "pose"])
         rows = np.arange(len(frames["pose"]) - 1, -1, -plan_every)[::-1]  # S2 ticks, last one
-        labels = _frame_rooms(store.spec(e), frames["pose"][rows], room_types, houses)  # (t,)
+        labels = frame_rooms(store.spec(e), frames["pose"][rows], room_types, houses)  # (t,)
         rgb = torch.from_numpy(frames["rgb"][rows].transpose(0, 3, 1, 2))  # (t, 3, H, W)
         depth = torch.from_numpy(frames["depth"][rows].transpose(0, 3, 1, 2).astype(np.float32))
         p = classifier.probabilities(rgb, depth)[:, index].numpy()  # (t,)

@@ -18,7 +18,7 @@ from vla_gr.envs.house import generate_house
 from vla_gr.errors import UserError
 from vla_gr.policy import VLAGRPolicy
 from vla_gr.training.agent_stage import build_agent_from, write_agent
-from vla_gr.training.room_type import _frame_rooms, room_accuracy, room_frames, train_room_type
+from vla_gr.training.room_type import frame_rooms, room_accuracy, room_frames, train_room_type
 from vla_gr.training.room_type import main as room_type_main
 
 SHIPPED = Path(__file__).resolve().parents[2] / "checkpoints" / "vla_gr_cpu"
@@ -51,7 +51,7 @@ def test_labels_are_the_room_of_the_start_and_of_the_goal_at_the_end(store):
     for e in range(s.num_episodes):
         spec = EpisodeSpec.from_dict(s.spec(e))
         house = generate_house(spec.scene_seed, num_rooms=spec.num_rooms, clutter=spec.clutter)
-        labels = _frame_rooms(s.spec(e), s.episode(e, ["pose"])["pose"], ROOMS, {})
+        labels = frame_rooms(s.spec(e), s.episode(e, ["pose"])["pose"], ROOMS, {})
         start_room = house.room_of(spec.start_x, spec.start_y).room_type
         goal = house.object(spec.goal_instance_id)
         assert ROOMS[labels[0]] == start_room  # the stored pose starts at (0, 0, 0)
@@ -65,7 +65,7 @@ def test_room_frames_keeps_every_stride_th_labelled_frame(store):
     frames = room_frames(store, ROOMS, stride=3)
     expected, houses = 0, {}
     for e in range(s.num_episodes):
-        labels = _frame_rooms(s.spec(e), s.episode(e, ["pose"])["pose"], ROOMS, houses)
+        labels = frame_rooms(s.spec(e), s.episode(e, ["pose"])["pose"], ROOMS, houses)
         expected += int((labels[::3] >= 0).sum())
     assert len(frames["label"]) == expected > 0
     assert frames["rgb"].shape == (expected, 3, 32, 32) and frames["rgb"].dtype == np.uint8

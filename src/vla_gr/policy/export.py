@@ -16,13 +16,13 @@ import argparse
 import os
 import shutil
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from vla_gr.checkpoint import read_checkpoint, save_checkpoint
 from vla_gr.errors import UserError
 
-__all__ = ["export_pretrained"]
+__all__ = ["export_pretrained", "write_checkpoint_folder"]
 
 
 def export_pretrained(src: str | Path, dst: str | Path, overrides: Sequence[str] = ()) -> Path:
@@ -37,16 +37,27 @@ def export_pretrained(src: str | Path, dst: str | Path, overrides: Sequence[str]
     config = OmegaConf.create(loaded.config_yaml)
     model = OmegaConf.merge(config.model, OmegaConf.from_dotlist(list(overrides)))
     config.model = model
+    updates = {"exported_from": str(src), "export_overrides": list(overrides)}
+    return write_checkpoint_folder(dst, loaded, loaded.model, OmegaConf.to_yaml(config), updates)
+
+
+def write_checkpoint_folder(
+    dst: str | Path, loaded, tensors: Mapping, config_yaml: str, state_updates: Mapping
+) -> Path:
+    """Write ``tensors`` and ``config_yaml`` as checkpoint folder ``dst`` (replaced once the
+    new one is complete), with the training state of checkpoint ``loaded`` (without its RNG,
+    at its step) plus ``state_updates``; verified by loading the result."""
+    from vla_gr.policy.agent import VLAGRPolicy
+
+    dst = Path(dst)
     staging = dst.parent / f".export-{dst.name}-{os.getpid()}"
     if staging.exists():
         shutil.rmtree(staging)
     state = {k: v for k, v in loaded.state.items() if k != "rng"}
-    state["exported_from"] = str(src)
-    state["export_overrides"] = list(overrides)
+    state.update(state_updates)
     written = save_checkpoint(
-        staging, int(loaded.state.get("step", 0)), loaded.model, state,
-        OmegaConf.to_yaml(config), links=(),
-    )  # fmt: skip
+        staging, int(loaded.state.get("step", 0)), tensors, state, config_yaml, links=()
+    )
     if dst.exists():
         shutil.rmtree(dst)
     os.replace(written, dst)

@@ -8,12 +8,10 @@ that ``vla-gr eval`` loads like any other.
 
 from __future__ import annotations
 
-import os
-import shutil
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-from vla_gr.checkpoint import load_model_state, read_checkpoint, save_checkpoint
+from vla_gr.checkpoint import load_model_state, read_checkpoint
 from vla_gr.errors import UserError
 
 __all__ = ["build_agent_from", "graft_part", "write_agent"]
@@ -71,23 +69,10 @@ def write_agent(policy, loaded, config, out: str | Path, state_updates: dict) ->
     loading it back."""
     from omegaconf import OmegaConf
 
-    from vla_gr.policy.agent import VLAGRPolicy
+    from vla_gr.policy.export import write_checkpoint_folder
 
-    out = Path(out)
-    state = {k: v for k, v in loaded.state.items() if k != "rng"}
-    state.update(state_updates)
-    staging = out.parent / f".stage-{out.name}-{os.getpid()}"
     tensors = {k: v.detach().contiguous() for k, v in policy.state_dict().items()}
-    written = save_checkpoint(
-        staging, int(loaded.state.get("step", 0)), tensors, state, OmegaConf.to_yaml(config),
-        links=(),
-    )  # fmt: skip
-    if out.exists():
-        shutil.rmtree(out)
-    os.replace(written, out)
-    shutil.rmtree(staging)
-    VLAGRPolicy.from_pretrained(out)  # the result verifies and loads
-    return out
+    return write_checkpoint_folder(out, loaded, tensors, OmegaConf.to_yaml(config), state_updates)
 
 
 def graft_part(

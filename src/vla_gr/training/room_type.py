@@ -36,13 +36,13 @@ from vla_gr.training.optim import build_optimizer, build_scheduler
 
 log = logging.getLogger(__name__)
 
-__all__ = ["room_accuracy", "room_frames", "train_room_type"]
+__all__ = ["frame_rooms", "room_accuracy", "room_frames", "train_room_type"]
 
 #: Episodes read from the store at a time (bounds the memory of a read).
 _BLOCK = 64
 
 
-def _frame_rooms(spec: dict, poses: np.ndarray, room_types: Sequence[str], houses: dict):
+def frame_rooms(spec: dict, poses: np.ndarray, room_types: Sequence[str], houses: dict):
     """Room-type index (T,) of each stored pose (T, 3) of one episode; -1 outside rooms."""
     from vla_gr.envs.episodes import EpisodeSpec
     from vla_gr.envs.house import generate_house
@@ -96,7 +96,7 @@ def room_frames(
             sl = store.episode_slice(e)
             rows = np.arange(sl.start, sl.stop, stride) - start  # (t,) within the block
             spec = store.spec(e)
-            labels = _frame_rooms(spec, block["pose"][rows], room_types, houses)  # (t,)
+            labels = frame_rooms(spec, block["pose"][rows], room_types, houses)  # (t,)
             keep = rows[labels >= 0]
             parts["rgb"].append(block["rgb"][keep].transpose(0, 3, 1, 2))  # (t, 3, H, W)
             parts["depth"].append(block["depth"][keep].transpose(0, 3, 1, 2))  # (t, 1, H, W)
