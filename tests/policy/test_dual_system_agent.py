@@ -140,7 +140,7 @@ def test_s1_acts_on_the_latest_plan_between_ticks():
             NavPlan(np.zeros((0, 2)), "stop", 1.0, True),
         ]
     )
-    system.navigator.plan = lambda obs, likelihood, visible, room_match: next(plans)
+    system.navigator.plan = lambda obs, likelihood, *checks: next(plans)
     model.reset()
     first = [model.select_action(_obs())[0].tolist() for _ in range(2)]
     assert first == [[0.0, 1.0, -1.0]] * 2  # the first plan's turn, held until the next tick
@@ -176,7 +176,7 @@ def test_learned_s1_reads_the_latest_plan_and_s2_runs_every_plan_every_steps():
     plans = iter(
         NavPlan(np.array([[1.0 + k, 0.5 * k]]), "explore", 0.1 * k, False) for k in range(4)
     )
-    system.navigator.plan = lambda obs, likelihood, visible, room_match: next(plans)
+    system.navigator.plan = lambda obs, likelihood, *checks: next(plans)
     read = []  # the plan vector S1 read at each call
     act = follower.policy.act
 
@@ -350,3 +350,30 @@ def test_the_room_check_is_asked_once_per_s2_tick_and_reaches_the_navigator():
     assert plain.room_type is None and plain.dual_system.room_match is None
     plain.select_action(_obs())
     assert list(plain.dual_system.navigator.room_matches) == [1.0]
+
+
+def test_the_object_check_reads_the_ticks_likelihood_and_reaches_the_navigator():
+    model = _model(
+        "model.dual_system.control_frequency_hz=10",
+        "model.dual_system.planning_frequency_hz=3.3",
+        "model.object_category.enabled=true",
+        "model.navigator.object_reject_threshold=0.5",
+    )
+    system = model.dual_system
+    assert system.object_match == model.object_match  # the policy's segmenter is S2's check
+    goal = np.zeros((32, 32), np.float32)
+    goal[8:16, 8:16] = 1.0
+    assert 0.0 < model.object_match(_obs(), goal) < 1.0
+    assert model.object_match(_obs(), np.zeros((32, 32), np.float32)) is None
+    asked = []
+    system.object_match = lambda obs, likelihood: asked.append(likelihood) or 0.25
+    model.reset()
+    for _ in range(7):
+        model.select_action(_obs())
+    assert len(asked) == 3  # steps 0, 3, 6
+    assert all(a is b for a, b in zip(asked[-1:], [system.last_likelihood]))
+    assert list(system.navigator.object_matches) == [0.25, 0.25, 0.25]
+    plain = _model()
+    assert plain.object_category is None and plain.dual_system.object_match is None
+    plain.select_action(_obs())
+    assert list(plain.dual_system.navigator.object_matches) == []

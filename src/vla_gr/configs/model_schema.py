@@ -4,8 +4,8 @@ Nests one config per component; each lives beside its component in ``vla_gr.core
 (``model.encoders``: :mod:`vla_gr.core.encoders.config`, ``model.head``:
 :mod:`vla_gr.core.diffusion_policy.config`, ``model.gr_field``:
 :mod:`vla_gr.core.gr_field.config`, ``model.dual_system``:
-:mod:`vla_gr.core.dual_system.config`, ``model.goal_head``, ``model.grounding`` and
-``model.room_type``:
+:mod:`vla_gr.core.dual_system.config`, ``model.goal_head``, ``model.grounding``,
+``model.room_type`` and ``model.object_category``:
 :mod:`vla_gr.core.grounding`), so the defaults are written once.
 
 ``model.agent`` picks what ``VLAGRPolicy`` builds: ``end_to_end`` (encoders -> fusion ->
@@ -22,7 +22,12 @@ from vla_gr.core.dual_system.pure_pursuit import PursuitConfig
 from vla_gr.core.encoders.config import EncodersConfig
 from vla_gr.core.gr_field.config import GRFieldConfig
 from vla_gr.core.gr_field.navigator import NavigatorConfig
-from vla_gr.core.grounding import GoalHeadConfig, GroundingConfig, RoomTypeConfig
+from vla_gr.core.grounding import (
+    GoalHeadConfig,
+    GroundingConfig,
+    ObjectCategoryConfig,
+    RoomTypeConfig,
+)
 from vla_gr.validation import check_choice, check_positive
 
 PEFT_METHODS = ("lora", "oft", "adapter")
@@ -96,6 +101,9 @@ class ModelConfig:
     goal_head: GoalHeadConfig = field(default_factory=GoalHeadConfig)  # S2's grounding
     grounding: GroundingConfig = field(default_factory=GroundingConfig)  # its loss, metrics
     room_type: RoomTypeConfig = field(default_factory=RoomTypeConfig)  # S2's room check
+    object_category: ObjectCategoryConfig = field(
+        default_factory=ObjectCategoryConfig
+    )  # S2's object-category check
     navigator: NavigatorConfig = field(default_factory=NavigatorConfig)  # S2's behaviour
     pursuit: PursuitConfig = field(default_factory=PursuitConfig)  # S1 ablation: follower
     s1: S1Config = field(default_factory=S1Config)  # S1: the learned controller
@@ -115,10 +123,11 @@ class ModelConfig:
         check_choice("model.agent", self.agent, AGENTS)
         for name in self.freeze:
             check_choice(f"model.freeze[] (model.agent={self.agent})", name, FREEZABLE[self.agent])
-        if self.room_type.enabled and self.agent != "dual_system":
-            raise ValueError(
-                f"model.room_type.enabled=true needs model.agent=dual_system (got {self.agent})"
-            )
+        for check in ("room_type", "object_category"):
+            if getattr(self, check).enabled and self.agent != "dual_system":
+                raise ValueError(
+                    f"model.{check}.enabled=true needs model.agent=dual_system (got {self.agent})"
+                )
         stride = 2 ** len(self.goal_head.channels)
         if self.agent == "dual_system" and self.image_size % stride:
             raise ValueError(

@@ -40,8 +40,11 @@ from vla_gr.core.dual_system import S1Policy
 from vla_gr.core.encoders import PoseEncoder, RGBDEncoder, build_text_encoder, pose_features
 from vla_gr.core.grounding import (
     GoalHead,
+    ObjectCategorySegmenter,
     RoomTypeClassifier,
+    category_match,
     goal_head_loss,
+    instructed_category,
     instructed_room,
     mask_confusion,
 )
@@ -298,17 +301,22 @@ class VLAGRPolicy(nn.Module):
 
     # ------------------------------------------------------------------ inference
     def _build_dual_system(self, c: ModelConfig) -> None:
-        """S2's goal head (and, with ``room_type.enabled``, its room-type classifier) + the
-        navigator on the GR field; S1 (the learned network is built whatever ``s1.kind``
-        says, so that one checkpoint serves both S1 kinds)."""
+        """S2's goal head (and, with ``room_type.enabled`` and ``object_category.enabled``,
+        its room-type classifier and object-category segmenter) + the navigator on the GR
+        field; S1 (the learned network is built whatever ``s1.kind`` says, so that one
+        checkpoint serves both S1 kinds)."""
         self.goal_head = GoalHead(c.goal_head)
         self.room_type = RoomTypeClassifier(c.room_type) if c.room_type.enabled else None
+        self.object_category = (
+            ObjectCategorySegmenter(c.object_category) if c.object_category.enabled else None
+        )
         self.s1 = S1Policy(c.s1)
         self.dual_system = GroundedDualSystem.from_model_config(
             self.goal_likelihood,
             c,
             self.s1,
             room_match=self.room_match if self.room_type is not None else None,
+            object_match=self.object_match if self.object_category is not None else None,
         )
 
     @torch.no_grad()
@@ -341,6 +349,24 @@ class VLAGRPolicy(nn.Module):
         frame = env_obs_to_frame(obs, device=self.action_scale.device)
         probs = self.room_type.probabilities(frame["rgb"], frame["depth"])  # (1, R)
         return float(probs[0, index])
+
+    @torch.no_grad()
+    def object_match(self, obs: Mapping, likelihood: np.ndarray) -> float | None:
+        """S2's object check: the mean probability that the pixels ``likelihood`` (H, W)
+        marks (``navigator.pixel_threshold``) show the category the instruction names; None
+        when too few are marked, the instruction names no known category, or the agent has
+        no segmenter."""
+        if self.object_category is None:
+            return None
+        instruction = as_instructions(obs["instruction"], "obs['instruction']")[0]
+        c = self.config.object_category
+        index = instructed_category(instruction, c.categories)
+        goal = np.asarray(likelihood) >= self.config.navigator.pixel_threshold  # (H, W)
+        if index is None or int(goal.sum()) < c.min_goal_pixels:
+            return None
+        frame = env_obs_to_frame(obs, device=self.action_scale.device)
+        probs = self.object_category.probabilities(frame["rgb"], frame["depth"])  # (1, 1+K, H, W)
+        return category_match(probs[0].cpu().numpy(), goal, index, c.min_goal_pixels)
 
     def _dual_system_step(self, obs: Mapping) -> torch.Tensor:
         """One control step of the dual system (S2 every ``plan_every`` steps, S1 every step;

@@ -11,7 +11,9 @@ S2 = a goal-likelihood source (the learned goal head of
 true mask) + :class:`~vla_gr.core.gr_field.Navigator` (map, masses, potential, metric,
 geodesic; look around, multi-tick confirmation, approach, verify, recover, stop), and, when
 given, a room check (``room_match``: how likely the robot is in the room the instruction
-names; the policy's room-type classifier, :mod:`vla_gr.core.grounding.room_type`). S1
+names; the policy's room-type classifier, :mod:`vla_gr.core.grounding.room_type`) and an
+object check (``object_match``: how likely the pixels the goal likelihood marks show the
+instructed category; :mod:`vla_gr.core.grounding.object_category`). S1
 (``model.s1.kind``) = the learned :class:`~vla_gr.core.dual_system.LearnedFollower` (RGB-D +
 the plan -> action chunk and STOP) or :class:`~vla_gr.core.dual_system.PurePursuit`; both
 carry the plan's waypoints into the current robot frame by odometry between ticks. The
@@ -34,7 +36,7 @@ from vla_gr.core.dual_system import (
 )
 from vla_gr.core.gr_field import GRFieldConfig, Navigator, NavigatorConfig, NavPlan
 
-__all__ = ["GoalLikelihood", "GroundedDualSystem", "RoomMatch"]
+__all__ = ["GoalLikelihood", "GroundedDualSystem", "ObjectMatch", "RoomMatch"]
 
 #: ``(obs) -> (H, W)`` per-pixel probability that the pixel shows the instructed object, or
 #: ``(obs) -> ((H, W), p)`` with ``p`` the probability that it is in view at all.
@@ -42,6 +44,9 @@ GoalLikelihood = Callable[[Mapping], np.ndarray | tuple[np.ndarray, float]]
 #: ``(obs) -> p``: probability that the robot is in a room of the instructed type (1 when the
 #: instruction names no room).
 RoomMatch = Callable[[Mapping], float]
+#: ``(obs, likelihood (H, W)) -> p or None``: probability that the pixels the likelihood marks
+#: show an object of the instructed category (None: no evidence on this tick).
+ObjectMatch = Callable[[Mapping, np.ndarray], float | None]
 
 
 class GroundedDualSystem:
@@ -54,6 +59,7 @@ class GroundedDualSystem:
         plan_every: control steps per S2 tick.
         s1: the learned S1 network; None = the pure-pursuit follower (``pursuit``).
         room_match: S2's room check (see :data:`RoomMatch`); None = every tick passes 1.
+        object_match: S2's object check (see :data:`ObjectMatch`); None = no evidence.
     """
 
     def __init__(
@@ -65,9 +71,11 @@ class GroundedDualSystem:
         plan_every: int = 1,
         s1: S1Policy | None = None,
         room_match: RoomMatch | None = None,
+        object_match: ObjectMatch | None = None,
     ) -> None:
         self.goal_likelihood = goal_likelihood
         self.room_match = room_match
+        self.object_match = object_match
         self.navigator = Navigator(navigator, field, plan_every=plan_every)
         self.follower = PurePursuit(pursuit) if s1 is None else LearnedFollower(s1)
         self.plan_every = self.navigator.plan_every
@@ -83,6 +91,7 @@ class GroundedDualSystem:
         model,
         s1: S1Policy | None = None,
         room_match: RoomMatch | None = None,
+        object_match: ObjectMatch | None = None,
     ) -> GroundedDualSystem:
         """Built from a ``ModelConfig``: ``navigator``, ``gr_field``, the S1 of ``s1.kind``
         (``s1`` is the learned network, used when the kind is ``learned``) and the S2 schedule
@@ -98,6 +107,7 @@ class GroundedDualSystem:
             plan_every=plan_interval(d.control_frequency_hz, d.planning_frequency_hz),
             s1=s1 if model.s1.kind == "learned" else None,
             room_match=room_match,
+            object_match=object_match,
         )
 
     def reset(self) -> None:
@@ -123,9 +133,8 @@ class GroundedDualSystem:
 
     def plan_if_due(self, obs: Mapping) -> dict[str, float] | None:
         """S2's part of a control step: on a planner tick, the goal likelihood (and the room
-        check) and a new plan
-        (handed to the follower). Returns the tick's seconds (``s2``, ``s2_perception``,
-        ``s2_navigator``), or None between ticks."""
+        and object checks) and a new plan (handed to the follower). Returns the tick's
+        seconds (``s2``, ``s2_perception``, ``s2_navigator``), or None between ticks."""
         if self.steps % self.plan_every:
             return None
         t0 = time.perf_counter()
@@ -133,15 +142,16 @@ class GroundedDualSystem:
         pose = np.asarray(obs["pose"], dtype=np.float64).reshape(3)  # (3,)
         perceived = self.goal_likelihood(obs)
         room_match = 1.0 if self.room_match is None else float(self.room_match(obs))
-        t_perceived = time.perf_counter()
         likelihood, visible = perceived if isinstance(perceived, tuple) else (perceived, 1.0)
         likelihood = np.asarray(likelihood, dtype=np.float32)  # (H, W)
         if likelihood.shape != depth.shape[:2]:
             raise ValueError(
                 f"goal likelihood has shape {likelihood.shape}, expected {depth.shape[:2]}"
             )
+        object_match = None if self.object_match is None else self.object_match(obs, likelihood)
+        t_perceived = time.perf_counter()
         self.plan = self.navigator.plan(
-            {"depth": depth, "pose": pose}, likelihood, visible, room_match
+            {"depth": depth, "pose": pose}, likelihood, visible, room_match, object_match
         )
         self.follower.set_plan(self.plan, pose)
         self.last_likelihood = likelihood

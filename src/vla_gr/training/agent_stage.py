@@ -1,20 +1,30 @@
 """Stages that train one part of a dual-system agent on top of a checkpoint: S1
-(:mod:`.s1`) and S2's room-type classifier (:mod:`.room_type`).
+(:mod:`.s1`), S2's room-type classifier (:mod:`.room_type`) and its object-category
+segmenter (:mod:`.object_category`).
 
-Both read the agent of a checkpoint, change settings under one config key, train that part
-with the rest loaded from the checkpoint, and write the whole agent as a new checkpoint
-that ``vla-gr eval`` loads like any other.
+Each reads the agent of a checkpoint, changes settings under one config key, trains that
+part with the rest loaded from the checkpoint, and writes the whole agent as a new checkpoint
+that ``vla-gr eval`` loads like any other. The two S2 checks learn from labelled stored frames
+(:func:`labelled_frames`) with one loop (:func:`fit_part`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import json
+import logging
+import time
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
+
+import numpy as np
+import torch
 
 from vla_gr.checkpoint import load_model_state, read_checkpoint
 from vla_gr.errors import UserError
 
-__all__ = ["build_agent_from", "graft_part", "write_agent"]
+log = logging.getLogger(__name__)
+
+__all__ = ["build_agent_from", "fit_part", "graft_part", "labelled_frames", "write_agent"]
 
 
 def build_agent_from(
@@ -99,3 +109,120 @@ def graft_part(
     getattr(policy, part).load_state_dict(tensors)
     config.model = OmegaConf.merge(config.model, OmegaConf.from_dotlist(list(settings)))
     return write_agent(policy, loaded, config, out, {f"{part}_from": str(donor)})
+
+
+#: Episodes read from a store at a time (bounds the memory of a read).
+_BLOCK = 64
+
+
+def labelled_frames(
+    store_path: str | Path,
+    label_episode: Callable[[dict, dict[str, np.ndarray]], np.ndarray],
+    first: int = 0,
+    count: int | None = None,
+    stride: int = 1,
+) -> dict[str, np.ndarray]:
+    """Every ``stride``-th frame of stored episodes ``[first, first + count)`` with its label.
+
+    ``label_episode(spec, frames)`` gets an episode's spec and its selected ``rgb``, ``depth``
+    and ``pose`` rows and returns their labels (t, ...); a frame whose label is negative
+    everywhere is dropped. Returns ``rgb`` (N, 3, H, W) uint8, ``depth`` (N, 1, H, W) float32,
+    ``label`` (N, ...) and ``house`` (N,) scene seed.
+    """
+    from vla_gr.data.store import EpisodeStore
+
+    if stride < 1:
+        raise UserError(f"stride={stride} must be >= 1")
+    store = EpisodeStore.open(store_path)
+    last = store.num_episodes if count is None else min(store.num_episodes, first + count)
+    if not 0 <= first < last:
+        raise UserError(
+            f"store {store_path} has {store.num_episodes} episodes; first={first} count={count} "
+            "selects none"
+        )
+    parts: dict[str, list[np.ndarray]] = {"rgb": [], "depth": [], "label": [], "house": []}
+    for b in range(first, last, _BLOCK):
+        episodes = range(b, min(b + _BLOCK, last))
+        start, stop = store.episode_slice(episodes[0]).start, store.episode_slice(episodes[-1]).stop
+        block = {k: store.data_array(k)[start:stop] for k in ("rgb", "depth", "pose")}
+        for e in episodes:
+            sl = store.episode_slice(e)
+            rows = np.arange(sl.start, sl.stop, stride) - start  # (t,) within the block
+            spec = store.spec(e)
+            labels = np.asarray(label_episode(spec, {k: v[rows] for k, v in block.items()}))
+            keep = (labels >= 0).reshape(len(rows), -1).any(axis=1)  # (t,)
+            parts["rgb"].append(block["rgb"][rows[keep]].transpose(0, 3, 1, 2))  # (t, 3, H, W)
+            parts["depth"].append(block["depth"][rows[keep]].transpose(0, 3, 1, 2))
+            parts["label"].append(labels[keep])
+            parts["house"].append(np.full(int(keep.sum()), int(spec["scene_seed"]), np.int64))
+    out = {k: np.concatenate(v) for k, v in parts.items()}
+    out["depth"] = out["depth"].astype(np.float32)
+    return out
+
+
+def fit_part(
+    module: torch.nn.Module,
+    frames: dict[str, np.ndarray],
+    batch_loss: Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor],
+    evaluate: Callable[[dict[str, np.ndarray]], dict],
+    score: str,
+    name: str,
+    steps: int,
+    batch_size: int,
+    lr: float,
+    seed: int,
+    val_fraction: float = 0.1,
+    eval_every: int = 250,
+) -> tuple[dict, dict[str, np.ndarray]]:
+    """Train ``module`` on ``frames`` (:func:`labelled_frames`), whole houses held out.
+
+    Each step draws ``batch_size`` training frames, mirrors half of them left-right (labels
+    with a width axis too) and minimises ``batch_loss(rgb, depth, label)``. Every
+    ``eval_every`` steps ``evaluate(held-out frames)`` reports a row; the weights with the
+    highest ``row[score]`` are kept. Returns the summary and the held-out frames.
+    """
+    from vla_gr.training.optim import build_optimizer, build_scheduler
+
+    houses = np.unique(frames["house"])
+    if len(houses) < 2:
+        raise UserError(f"{name} frames come from {len(houses)} house; training needs 2 or more")
+    rng = np.random.default_rng(seed)
+    n_val = min(len(houses) - 1, max(1, int(round(val_fraction * len(houses)))))
+    held = np.isin(frames["house"], rng.permutation(houses)[:n_val])  # (N,)
+    val = {k: v[held] for k, v in frames.items()}
+    train_rows = np.flatnonzero(~held)
+    log.info("%s frames: %d train / %d val (%d houses held out)", name, len(train_rows),
+             int(held.sum()), n_val)  # fmt: skip
+    module.requires_grad_(True)
+    optimizer = build_optimizer(module, lr, 1e-4)
+    scheduler = build_scheduler(optimizer, min(100, steps // 10), steps, 0.05)
+    best, best_state, history = -np.inf, None, []
+    t0 = time.perf_counter()
+    for step in range(1, steps + 1):
+        module.train()
+        rows = rng.choice(train_rows, size=batch_size)  # (B,)
+        rgb = torch.from_numpy(frames["rgb"][rows])  # (B, 3, H, W) uint8
+        depth = torch.from_numpy(frames["depth"][rows])  # (B, 1, H, W)
+        label = torch.from_numpy(frames["label"][rows])  # (B,) or (B, H, W)
+        flip = torch.from_numpy(rng.random(batch_size) < 0.5)  # (B,) mirrored frames
+        rgb = torch.where(flip[:, None, None, None], rgb.flip(-1), rgb)
+        depth = torch.where(flip[:, None, None, None], depth.flip(-1), depth)
+        if label.dim() == 3:  # per-pixel labels mirror with their frames
+            label = torch.where(flip[:, None, None], label.flip(-1), label)
+        loss = batch_loss(rgb, depth, label)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        scheduler.step()
+        if step % eval_every == 0 or step == steps:
+            module.eval()
+            row = {"step": step, "loss": round(float(loss.detach()), 4), **evaluate(val)}
+            row["seconds"] = round(time.perf_counter() - t0, 1)
+            history.append(row)
+            log.info("%s %s", name, json.dumps(row))
+            if row[score] > best:
+                best = row[score]
+                best_state = {k: v.clone() for k, v in module.state_dict().items()}
+    module.load_state_dict(best_state)
+    module.eval()
+    return {f"best_val_{score}": best, "history": history}, val

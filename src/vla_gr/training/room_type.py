@@ -22,7 +22,6 @@ import json
 import logging
 import os
 import sys
-import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -31,15 +30,17 @@ import torch
 import torch.nn.functional as F
 
 from vla_gr.errors import UserError
-from vla_gr.training.agent_stage import build_agent_from, graft_part, write_agent
-from vla_gr.training.optim import build_optimizer, build_scheduler
+from vla_gr.training.agent_stage import (
+    build_agent_from,
+    fit_part,
+    graft_part,
+    labelled_frames,
+    write_agent,
+)
 
 log = logging.getLogger(__name__)
 
 __all__ = ["frame_rooms", "room_accuracy", "room_frames", "train_room_type"]
-
-#: Episodes read from the store at a time (bounds the memory of a read).
-_BLOCK = 64
 
 
 def frame_rooms(spec: dict, poses: np.ndarray, room_types: Sequence[str], houses: dict):
@@ -75,36 +76,14 @@ def room_frames(
     Returns ``rgb`` (N, 3, H, W) uint8, ``depth`` (N, 1, H, W) float32, ``label`` (N,) index
     in ``room_types`` and ``house`` (N,) scene seed; frames outside every room are dropped.
     """
-    from vla_gr.data.store import EpisodeStore
-
-    if stride < 1:
-        raise UserError(f"stride={stride} must be >= 1")
-    store = EpisodeStore.open(store_path)
-    last = store.num_episodes if count is None else min(store.num_episodes, first + count)
-    if not 0 <= first < last:
-        raise UserError(
-            f"store {store_path} has {store.num_episodes} episodes; first={first} count={count} "
-            "selects none"
-        )
-    parts: dict[str, list[np.ndarray]] = {"rgb": [], "depth": [], "label": [], "house": []}
     houses: dict = {}
-    for b in range(first, last, _BLOCK):
-        episodes = range(b, min(b + _BLOCK, last))
-        start, stop = store.episode_slice(episodes[0]).start, store.episode_slice(episodes[-1]).stop
-        block = {k: store.data_array(k)[start:stop] for k in ("rgb", "depth", "pose")}
-        for e in episodes:
-            sl = store.episode_slice(e)
-            rows = np.arange(sl.start, sl.stop, stride) - start  # (t,) within the block
-            spec = store.spec(e)
-            labels = frame_rooms(spec, block["pose"][rows], room_types, houses)  # (t,)
-            keep = rows[labels >= 0]
-            parts["rgb"].append(block["rgb"][keep].transpose(0, 3, 1, 2))  # (t, 3, H, W)
-            parts["depth"].append(block["depth"][keep].transpose(0, 3, 1, 2))  # (t, 1, H, W)
-            parts["label"].append(labels[labels >= 0])
-            parts["house"].append(np.full(len(keep), int(spec["scene_seed"]), np.int64))
-    out = {k: np.concatenate(v) for k, v in parts.items()}
-    out["depth"] = out["depth"].astype(np.float32)
-    return out
+    return labelled_frames(
+        store_path,
+        lambda spec, frames: frame_rooms(spec, frames["pose"], room_types, houses),
+        first,
+        count,
+        stride,
+    )
 
 
 @torch.no_grad()
@@ -163,49 +142,21 @@ def train_room_type(
         )
     config.model.navigator.room_reject_threshold = float(reject_threshold)
     classifier = policy.room_type
-    houses = np.unique(frames["house"])
-    if len(houses) < 2:
-        raise UserError(f"room frames come from {len(houses)} house; training needs 2 or more")
-    rng = np.random.default_rng(seed)
-    n_val = min(len(houses) - 1, max(1, int(round(val_fraction * len(houses)))))
-    held = np.isin(frames["house"], rng.permutation(houses)[:n_val])  # (N,)
-    val = {k: v[held] for k, v in frames.items()}
-    train_rows = np.flatnonzero(~held)
-    log.info("room frames: %d train / %d val (%d houses held out)", len(train_rows),
-             int(held.sum()), n_val)  # fmt: skip
     policy.requires_grad_(False)
-    classifier.requires_grad_(True)
-    optimizer = build_optimizer(classifier, lr, 1e-4)
-    scheduler = build_scheduler(optimizer, min(100, steps // 10), steps, 0.05)
-    best, best_state, history = -1.0, None, []
-    t0 = time.perf_counter()
-    for step in range(1, steps + 1):
-        classifier.train()
-        rows = rng.choice(train_rows, size=batch_size)  # (B,)
-        rgb = torch.from_numpy(frames["rgb"][rows])  # (B, 3, H, W) uint8
-        depth = torch.from_numpy(frames["depth"][rows])  # (B, 1, H, W)
-        flip = torch.from_numpy(rng.random(batch_size) < 0.5)  # (B,) mirrored frames
-        rgb = torch.where(flip[:, None, None, None], rgb.flip(-1), rgb)
-        depth = torch.where(flip[:, None, None, None], depth.flip(-1), depth)
-        loss = F.cross_entropy(classifier(rgb, depth), torch.from_numpy(frames["label"][rows]))
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        optimizer.step()
-        scheduler.step()
-        if step % eval_every == 0 or step == steps:
-            row = {
-                "step": step,
-                "loss": round(float(loss.detach()), 4),
-                **room_accuracy(classifier, val),
-            }
-            row["seconds"] = round(time.perf_counter() - t0, 1)
-            history.append(row)
-            log.info("room type %s", json.dumps(row))
-            if row["accuracy"] > best:
-                best = row["accuracy"]
-                best_state = {k: v.clone() for k, v in classifier.state_dict().items()}
-    classifier.load_state_dict(best_state)
-    summary = {"best_val_accuracy": best, "history": history}
+    summary, _ = fit_part(
+        classifier,
+        frames,
+        lambda rgb, depth, label: F.cross_entropy(classifier(rgb, depth), label),
+        lambda val: room_accuracy(classifier, val),
+        "accuracy",
+        "room type",
+        steps,
+        batch_size,
+        lr,
+        seed,
+        val_fraction,
+        eval_every,
+    )
     if eval_frames is not None:
         summary["eval"] = room_accuracy(classifier, eval_frames)
         log.info("room type on the evaluation store: %s", json.dumps(summary["eval"]))

@@ -413,9 +413,45 @@ def test_the_room_check_rejects_a_goal_in_another_room_and_stops_in_the_right_on
     assert plans[1].stop and nav.rejections == 0
 
 
+def test_the_object_check_rejects_a_goal_of_another_category_and_ignores_ticks_without_evidence():
+    near = (ROOM[1] - 0.6, 0.0, 0.0)
+    like = wall_goal(room_depth(near))
+
+    def run(object_match, threshold=0.5):
+        nav = make_nav(look_around_angle=0.0, stop_distance=0.8,
+                       object_reject_threshold=threshold, object_ticks=2)  # fmt: skip
+        depth = room_depth(near)
+        pose = np.array(near, np.float32)
+        plans = [nav.plan({"depth": depth, "pose": pose}, like, 1.0, 1.0, m) for m in object_match]
+        return nav, plans
+
+    # the goal pixels confidently show another category: rejected when confirmed and near
+    nav, plans = run([0.1, 0.1])
+    assert not any(p.stop for p in plans) and nav.rejections == 1 and nav.rejected.any()
+    assert len(nav.object_matches) == 0  # the rejected goal's evidence goes with it
+    # the mean of the last object_ticks values with evidence decides
+    nav, plans = run([0.9, 0.2])
+    assert plans[1].stop and nav.stop_evidence["object_match"] == pytest.approx(0.55)
+    nav, plans = run([0.3, 0.2])
+    assert not plans[1].stop and nav.rejections == 1
+    # ticks without evidence (None) neither count nor reject
+    nav, plans = run([0.1, None, None][1:])
+    assert plans[1].stop and nav.stop_evidence["object_match"] is None
+    nav, plans = run([0.2, None])
+    assert not plans[1].stop and nav.rejections == 1  # 0.2 is still the last evidence
+    # off (0): the same evidence stops
+    nav, plans = run([0.1, 0.1], threshold=0.0)
+    assert plans[1].stop and nav.rejections == 0
+
+
 @pytest.mark.parametrize(
     "overrides, key",
-    [({"room_reject_threshold": 1.5}, "room_reject_threshold"), ({"room_ticks": 0}, "room_ticks")],
+    [
+        ({"room_reject_threshold": 1.5}, "room_reject_threshold"),
+        ({"room_ticks": 0}, "room_ticks"),
+        ({"object_reject_threshold": -0.1}, "object_reject_threshold"),
+        ({"object_ticks": 0}, "object_ticks"),
+    ],
 )
 def test_room_check_settings_out_of_range_name_the_key(overrides, key):
     with pytest.raises(ValueError, match=f"model.navigator.{key}"):

@@ -15,7 +15,8 @@ Modes and transitions (checked in this order every tick)::
     verify       the same but not (yet) verified: turn towards it (verify_steps at most); then
                  stop anyway, or with stop_visible_threshold reject that goal and explore on;
                  a goal near which the robot is confidently not in the instructed room
-                 (room_reject_threshold) is rejected before either
+                 (room_reject_threshold), or whose pixels confidently show another
+                 category (object_reject_threshold), is rejected before either
     approach     a confirmed goal: follow the field's geodesic to its stand-off; a goal the
                  robot has stood at the end of the path to for dead_end_steps without being
                  able to stop (not within stop distance in line of sight) is rejected
@@ -30,7 +31,11 @@ cast none again, and the robot explores on. Room check: for an instruction that 
 each tick also gets the probability that the robot stands in a room of that type
 (:mod:`vla_gr.core.grounding.room_type`); near a confirmed goal, a mean over the last
 ``room_ticks`` ticks below ``room_reject_threshold`` rejects the goal the same way (a
-same-category twin in another room). The same happens to a dead end: a goal whose path
+same-category twin in another room). Object check: each tick with goal pixels may also get
+the probability that they show the instructed category
+(:mod:`vla_gr.core.grounding.object_category`); a mean over the last ``object_ticks`` such
+ticks below ``object_reject_threshold`` rejects a goal near which the robot stands (another
+object marked for the goal). The same happens to a dead end: a goal whose path
 ends where the robot stands but which is not in line of sight within the stop distance (the
 head fired on something behind furniture or a wall), which would otherwise hold the robot
 there until the step budget runs out. Blocked: the plan wanted to drive ahead (its pursuit
@@ -92,6 +97,11 @@ class NavigatorConfig:
     # last room_ticks ticks that the robot is in a room of the instructed type is below this
     room_reject_threshold: float = 0.0  # 0 = off
     room_ticks: int = 3
+    # every goal: near a confirmed goal, reject it when the mean probability, over the last
+    # object_ticks ticks that saw goal pixels, that those pixels show an object of the
+    # instructed category is below this
+    object_reject_threshold: float = 0.0  # 0 = off
+    object_ticks: int = 3
     confirm_ticks: int = 2  # ticks with goal votes before a cell is a goal
     min_goal_pixels: int = 3  # goal pixels for "the goal is in view now"
     stop_distance: float = 0.8  # m from the robot centre to a confirmed goal cell
@@ -143,7 +153,8 @@ class NavigatorConfig:
             if not getattr(self, key) >= 0:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 0")
         for key in ("confirm_ticks", "min_goal_pixels", "verify_steps", "stuck_steps",
-                    "blocked_steps", "no_path_steps", "tight_steps", "room_ticks"):  # fmt: skip
+                    "blocked_steps", "no_path_steps", "tight_steps", "room_ticks",
+                    "object_ticks"):  # fmt: skip
             if int(getattr(self, key)) < 1:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 1")
         for key in ("recover_back_steps", "recover_turn_steps", "dead_end_steps",
@@ -153,7 +164,8 @@ class NavigatorConfig:
         for key in ("turn_rate", "recover_back_speed", "pixel_threshold", "tight_speed"):
             if not 0.0 < getattr(self, key) <= 1.0:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be in (0, 1]")
-        for key in ("visible_threshold", "stop_visible_threshold", "room_reject_threshold"):
+        for key in ("visible_threshold", "stop_visible_threshold", "room_reject_threshold",
+                    "object_reject_threshold"):  # fmt: skip
             if not 0.0 <= getattr(self, key) <= 1.0:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be in [0, 1]")
 
@@ -226,13 +238,20 @@ class Navigator:
         self.tick_goal_pixels = 0  # goal pixels of this tick that landed on the map
         self.stop_evidence: dict[str, float] = {}  # what S2 saw on the tick it asked to STOP
         self.room_matches: deque[float] = deque(maxlen=self.config.room_ticks)  # last ticks'
+        # the object check of the last ticks with evidence (cleared when a goal is rejected)
+        self.object_matches: deque[float] = deque(maxlen=self.config.object_ticks)
         self.last_output = None
         self.last_latency = 0.0
 
     # ------------------------------------------------------------------ tick
 
     def plan(
-        self, obs: dict, goal_likelihood, goal_visible: float = 1.0, room_match: float = 1.0
+        self,
+        obs: dict,
+        goal_likelihood,
+        goal_visible: float = 1.0,
+        room_match: float = 1.0,
+        object_match: float | None = None,
     ) -> NavPlan:
         """One planner tick.
 
@@ -245,6 +264,9 @@ class Navigator:
                 head's per-frame output); below ``visible_threshold`` the tick casts no votes.
             room_match: probability that the robot stands in a room of the type the
                 instruction names (1 when it names none); see ``room_reject_threshold``.
+            object_match: probability that this frame's goal pixels show an object of the
+                instructed category (None: no evidence this tick); see
+                ``object_reject_threshold``.
         """
         t0 = time.perf_counter()
         cfg = self.config
@@ -255,6 +277,8 @@ class Navigator:
         like = torch.as_tensor(np.asarray(goal_likelihood, np.float32)).reshape(depth.shape)
         votes_allowed = float(goal_visible) >= cfg.visible_threshold
         self.room_matches.append(float(room_match))
+        if object_match is not None:
+            self.object_matches.append(float(object_match))
         self.tick_goal_pixels = 0  # set by _vote; stays 0 on a tick that casts no votes
         visible = votes_allowed and self._vote(depth, pose, like)  # goal pixels in view now
         confirmed = self.goal_votes >= cfg.confirm_ticks  # (H, W)
@@ -307,7 +331,7 @@ class Navigator:
         )
         near = distance <= (cfg.stop_distance_at_end if at_end else cfg.stop_distance)
         if self.committed and near:
-            if self._wrong_room():
+            if self._wrong_room() or self._wrong_object():
                 return self._abandon_goal(nearest)
             verified = float(goal_visible) >= cfg.stop_visible_threshold
             if visible and verified:
@@ -376,6 +400,7 @@ class Navigator:
             goal[max(row - 2, 0) : row + 3, max(col - 2, 0) : col + 3] = True
         self.rejected |= goal
         self.goal_votes[goal] = 0
+        self.object_matches.clear()  # evidence about the rejected goal
         self.committed = False
         self.rejections += 1
         logger.debug("navigator: goal at cell %s rejected", (row, col))
@@ -384,6 +409,15 @@ class Navigator:
         """The room check: the last ticks say the robot is not in the instructed room."""
         threshold = self.config.room_reject_threshold
         return threshold > 0.0 and float(np.mean(self.room_matches)) < threshold
+
+    def _wrong_object(self) -> bool:
+        """The object check: the last ticks' goal pixels do not show the instructed category."""
+        threshold = self.config.object_reject_threshold
+        return (
+            threshold > 0.0
+            and len(self.object_matches) > 0
+            and float(np.mean(self.object_matches)) < threshold
+        )
 
     def _abandon_goal(self, nearest: np.ndarray) -> NavPlan:
         """Reject the committed goal nearest ``nearest`` (2,), reset the counters that led
@@ -412,6 +446,9 @@ class Navigator:
             "total_votes": int(votes.sum()),
             "distance": round(float(distance), 3),
             "room_match": round(float(np.mean(self.room_matches)), 4),
+            "object_match": (
+                round(float(np.mean(self.object_matches)), 4) if self.object_matches else None
+            ),
             "tick": int(self.ticks),
         }
 

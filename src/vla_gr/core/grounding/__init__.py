@@ -1,5 +1,5 @@
 """Language grounding for S2: the goal head (pixels of the instructed object), its losses,
-and the room-type check of room instructions."""
+the room-type check of room instructions and the object-category check of every goal."""
 
 from vla_gr.core.grounding.goal_head import GoalHead, GoalHeadConfig
 from vla_gr.core.grounding.losses import (
@@ -9,16 +9,26 @@ from vla_gr.core.grounding.losses import (
     mask_confusion,
     visible_targets,
 )
+from vla_gr.core.grounding.object_category import (
+    ObjectCategoryConfig,
+    ObjectCategorySegmenter,
+    category_match,
+    instructed_category,
+)
 from vla_gr.core.grounding.room_type import RoomTypeClassifier, RoomTypeConfig, instructed_room
 
 __all__ = [
     "GoalHead",
     "GoalHeadConfig",
     "GroundingConfig",
+    "ObjectCategoryConfig",
+    "ObjectCategorySegmenter",
     "RoomTypeClassifier",
     "RoomTypeConfig",
+    "category_match",
     "confusion_metrics",
     "goal_head_loss",
+    "instructed_category",
     "instructed_room",
     "mask_confusion",
     "visible_targets",

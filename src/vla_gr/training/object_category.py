@@ -1,0 +1,206 @@
+"""Train S2's object-category segmenter (:mod:`vla_gr.core.grounding.object_category`).
+
+Labels of a frame: the category of the object every pixel shows, from the world's geometry
+(:mod:`vla_gr.training.object_labels`: the stored depth and pose, back-projected into the
+house regenerated from the episode's spec). Whole houses are held out for validation, and the
+weights with the best held-out mean IoU over the categories are kept. The rest of the agent
+comes from ``init`` and stays fixed. The result is the agent with
+``model.object_category.enabled=true`` and the object check on
+(``navigator.object_reject_threshold``), a checkpoint that ``vla-gr eval`` loads like any
+other.
+
+    python -m vla_gr.training.object_category checkpoints/vla_gr_cpu outputs/object/agent \
+        --store data/big4.zarr --episodes 1500 --stride 6 --eval-store data/expert_val60.zarr
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from vla_gr.errors import UserError
+from vla_gr.training.agent_stage import build_agent_from, fit_part, labelled_frames, write_agent
+from vla_gr.training.object_labels import frame_categories
+
+log = logging.getLogger(__name__)
+
+__all__ = ["category_frames", "segmentation_scores", "train_object_category"]
+
+
+def category_frames(
+    store_path: str | Path,
+    categories: Sequence[str],
+    first: int = 0,
+    count: int | None = None,
+    stride: int = 1,
+) -> dict[str, np.ndarray]:
+    """Every ``stride``-th frame of stored episodes ``[first, first + count)`` with its
+    per-pixel labels: ``rgb`` (N, 3, H, W) uint8, ``depth`` (N, 1, H, W) float32, ``label``
+    (N, H, W) uint8 (0 background, k = ``categories[k - 1]``) and ``house`` (N,)."""
+    houses: dict = {}
+    return labelled_frames(
+        store_path,
+        lambda spec, f: frame_categories(spec, f["pose"], f["depth"], categories, houses),
+        first,
+        count,
+        stride,
+    )
+
+
+@torch.no_grad()
+def segmentation_scores(segmenter, frames: dict[str, np.ndarray], batch_size: int = 256) -> dict:
+    """Per-pixel scores of ``segmenter`` on ``frames`` (:func:`category_frames`): accuracy,
+    IoU per category and their mean, and how often the argmax inside each category's true
+    pixels is that category (what the object check reads)."""
+    segmenter.eval()
+    K = 1 + len(segmenter.config.categories)
+    confusion = np.zeros((K, K), np.int64)  # (true, predicted)
+    for i in range(0, len(frames["label"]), batch_size):
+        rgb = torch.from_numpy(frames["rgb"][i : i + batch_size])  # (b, 3, H, W)
+        depth = torch.from_numpy(frames["depth"][i : i + batch_size])  # (b, 1, H, W)
+        predicted = segmenter(rgb, depth).argmax(1).numpy().reshape(-1)  # (b * H * W,)
+        true = frames["label"][i : i + batch_size].reshape(-1).astype(np.int64)  # (b * H * W,)
+        confusion += np.bincount(true * K + predicted, minlength=K * K).reshape(K, K)
+    hits = np.diag(confusion)  # (K,)
+    union = confusion.sum(0) + confusion.sum(1) - hits  # (K,)
+    present = confusion.sum(1) > 0  # (K,) classes with true pixels
+    iou = np.where(union > 0, hits / np.maximum(union, 1), np.nan)  # (K,)
+    names = list(segmenter.config.categories)
+    per_category = {n: round(float(iou[k + 1]), 4) for k, n in enumerate(names) if present[k + 1]}
+    return {
+        "frames": int(len(frames["label"])),
+        "pixel_accuracy": round(float(hits.sum() / max(confusion.sum(), 1)), 4),
+        "mean_iou": round(float(np.nanmean(iou[1:][present[1:]])), 4) if present[1:].any() else 0.0,
+        "iou": per_category,
+        "recall": {
+            n: round(float(hits[k + 1] / confusion[k + 1].sum()), 4)
+            for k, n in enumerate(names)
+            if present[k + 1]
+        },
+    }
+
+
+def train_object_category(
+    init: str | Path,
+    out: str | Path,
+    frames: dict[str, np.ndarray],
+    categories: Sequence[str],
+    steps: int = 3000,
+    batch_size: int = 64,
+    lr: float = 2e-3,
+    seed: int = 0,
+    settings: Sequence[str] = (),
+    reject_threshold: float = 0.3,
+    background_weight: float = 0.5,
+    val_fraction: float = 0.1,
+    eval_every: int = 250,
+    eval_frames: dict[str, np.ndarray] | None = None,
+) -> dict:
+    """Train the segmenter on ``frames`` (labelled in ``categories``' order; background
+    pixels weigh ``background_weight``) and write the agent to ``out``; returns the summary."""
+    torch.manual_seed(seed)
+    policy, loaded, config = build_agent_from(
+        init,
+        "object_category",
+        settings,
+        keep_part=False,
+        forced=["object_category.enabled=true"],
+    )
+    if list(policy.config.object_category.categories) != list(categories):
+        raise UserError(
+            f"frames are labelled in {list(categories)} but the segmenter predicts "
+            f"{list(policy.config.object_category.categories)} (object_category.categories)"
+        )
+    config.model.navigator.object_reject_threshold = float(reject_threshold)
+    segmenter = policy.object_category
+    weight = torch.ones(1 + len(categories))  # (1 + K,)
+    weight[0] = background_weight
+    policy.requires_grad_(False)
+    summary, _ = fit_part(
+        segmenter,
+        frames,
+        lambda rgb, depth, label: F.cross_entropy(
+            segmenter(rgb, depth), label.long(), weight=weight
+        ),
+        lambda val: segmentation_scores(segmenter, val),
+        "mean_iou",
+        "object category",
+        steps,
+        batch_size,
+        lr,
+        seed,
+        val_fraction,
+        eval_every,
+    )
+    if eval_frames is not None:
+        summary["eval"] = segmentation_scores(segmenter, eval_frames)
+        log.info("object category on the evaluation store: %s", json.dumps(summary["eval"]))
+    write_agent(policy.eval(), loaded, config, out, {"object_category_training": summary})
+    log.info("wrote %s", out)
+    return summary
+
+
+def _categories(settings: Sequence[str]) -> list[str]:
+    """``object_category.categories`` after ``settings`` (the classes of the labels)."""
+    from omegaconf import OmegaConf
+
+    from vla_gr.core.grounding import ObjectCategoryConfig
+
+    merged = OmegaConf.merge(
+        OmegaConf.structured(ObjectCategoryConfig),
+        OmegaConf.from_dotlist([s.removeprefix("object_category.") for s in settings]),
+    )
+    return list(merged.categories)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    prog = "python -m vla_gr.training.object_category"
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__)
+    parser.add_argument("init", help="the dual-system agent checkpoint (kept but the segmenter)")
+    parser.add_argument("out", help="the checkpoint folder to write (replaced)")
+    parser.add_argument("--store", required=True, help="expert store with the training frames")
+    parser.add_argument("--first", type=int, default=0, help="first stored episode to read")
+    parser.add_argument("--episodes", type=int, default=None, help="stored episodes to read")
+    parser.add_argument("--stride", type=int, default=8, help="every stride-th frame")
+    parser.add_argument("--eval-store", default=None, help="a store of unseen houses to report on")
+    parser.add_argument("--steps", type=int, default=3000)
+    parser.add_argument("--batch-size", type=int, default=64)
+    parser.add_argument("--lr", type=float, default=2e-3)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--reject-threshold", type=float, default=0.3, help="navigator.object_reject_threshold"
+    )
+    parser.add_argument("--set", nargs="*", default=[], help="object_category.* settings")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
+    torch.set_num_threads(max(1, min(2, os.cpu_count() or 1)))
+    try:
+        categories = _categories(args.set)
+        frames = category_frames(args.store, categories, args.first, args.episodes, args.stride)
+        eval_frames = (
+            category_frames(args.eval_store, categories, stride=args.stride)
+            if args.eval_store
+            else None
+        )
+        train_object_category(
+            args.init, args.out, frames, categories, steps=args.steps,
+            batch_size=args.batch_size, lr=args.lr, seed=args.seed, settings=args.set,
+            reject_threshold=args.reject_threshold, eval_frames=eval_frames,
+        )  # fmt: skip
+    except UserError as err:
+        sys.stderr.write(f"{parser.prog}: error: {err}\n")
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
