@@ -18,7 +18,7 @@ from vla_gr.core.dual_system import LearnedFollower
 from vla_gr.core.dual_system.s1_inputs import PlanMemory
 from vla_gr.core.gr_field import NavPlan
 from vla_gr.core.gr_field.navigator import MODES
-from vla_gr.core.grounding import goal_head_loss
+from vla_gr.core.grounding import ObjectEvidence, goal_head_loss
 from vla_gr.data.dataset import EpisodeWindowDataset
 from vla_gr.policy import VLAGRPolicy, make_fake_batch
 from vla_gr.train import train
@@ -352,7 +352,7 @@ def test_the_room_check_is_asked_once_per_s2_tick_and_reaches_the_navigator():
     assert list(plain.dual_system.navigator.room_matches) == [1.0]
 
 
-def test_the_object_check_reads_the_ticks_likelihood_and_reaches_the_navigator():
+def test_the_object_checks_read_the_ticks_likelihood_and_reach_the_navigator():
     model = _model(
         "model.dual_system.control_frequency_hz=10",
         "model.dual_system.planning_frequency_hz=3.3",
@@ -360,20 +360,28 @@ def test_the_object_check_reads_the_ticks_likelihood_and_reaches_the_navigator()
         "model.navigator.object_reject_threshold=0.5",
     )
     system = model.dual_system
-    assert system.object_match == model.object_match  # the policy's segmenter is S2's check
+    assert system.object_evidence == model.object_evidence  # the policy's segmenter
     goal = np.zeros((32, 32), np.float32)
     goal[8:16, 8:16] = 1.0
-    assert 0.0 < model.object_match(_obs(), goal) < 1.0
-    assert model.object_match(_obs(), np.zeros((32, 32), np.float32)) is None
+    assert 0.0 < model.object_evidence(_obs(), goal).match < 1.0
+    assert model.object_evidence(_obs(), np.zeros((32, 32), np.float32)).match is None
     asked = []
-    system.object_match = lambda obs, likelihood: asked.append(likelihood) or 0.25
+    anchor = np.zeros((32, 32), np.float32)
+    anchor[:, 12:20] = 1.0  # the anchor fills the middle columns of every frame
+
+    def evidence(obs, likelihood):
+        asked.append(likelihood)
+        return ObjectEvidence(0.25, anchor)
+
+    system.object_evidence = evidence
     model.reset()
     for _ in range(7):
         model.select_action(_obs())
-    assert len(asked) == 3  # steps 0, 3, 6
-    assert all(a is b for a, b in zip(asked[-1:], [system.last_likelihood]))
+    assert len(asked) == 3 and asked[-1] is system.last_likelihood  # steps 0, 3, 6
     assert list(system.navigator.object_matches) == [0.25, 0.25, 0.25]
+    assert system.navigator.has_anchor and system.navigator.anchor_votes.max() == 3
     plain = _model()
-    assert plain.object_category is None and plain.dual_system.object_match is None
+    assert plain.object_category is None and plain.dual_system.object_evidence is None
     plain.select_action(_obs())
     assert list(plain.dual_system.navigator.object_matches) == []
+    assert not plain.dual_system.navigator.has_anchor

@@ -100,7 +100,7 @@ def test_trained_segmenter_is_written_with_the_object_check_and_the_rest_untouch
         k for k in written.model if k.startswith("object_category.")
     }
     policy = VLAGRPolicy.from_pretrained(out)
-    assert policy.dual_system.object_match == policy.object_match
+    assert policy.dual_system.object_evidence == policy.object_evidence
     assert segmentation_scores(policy.object_category, frames) == summary["eval"]
     obs = {
         "rgb": frames["rgb"][0].transpose(1, 2, 0),
@@ -114,10 +114,15 @@ def test_trained_segmenter_is_written_with_the_object_check_and_the_rest_untouch
         torch.from_numpy(frames["rgb"][:1]), torch.from_numpy(frames["depth"][:1])
     )[0]  # (1 + K, 32, 32)
     expected = float(probs[CATEGORIES.index("sofa") + 1, 10:14, 10:14].mean())
-    assert policy.object_match(obs, goal) == pytest.approx(expected, rel=1e-5)
-    assert policy.object_match(obs, np.zeros((32, 32), np.float32)) is None  # no goal pixels
-    assert policy.object_match({**obs, "instruction": "find the couch"}, goal) is None
-    assert VLAGRPolicy.from_pretrained(plain).object_match(obs, goal) is None
+    evidence = policy.object_evidence(obs, goal)
+    assert evidence.match == pytest.approx(expected, rel=1e-5)
+    tv = probs[CATEGORIES.index("tv_monitor") + 1].numpy()  # the anchor "tv", every pixel
+    np.testing.assert_allclose(evidence.anchor, tv, rtol=1e-5)
+    nothing = policy.object_evidence(obs, np.zeros((32, 32), np.float32))  # no goal pixels
+    assert nothing.match is None and nothing.anchor is not None  # the anchor is still mapped
+    assert policy.object_evidence({**obs, "instruction": "find the couch"}, goal) == (None, None)
+    assert policy.object_evidence({**obs, "instruction": "find the sofa"}, goal).anchor is None
+    assert VLAGRPolicy.from_pretrained(plain).object_evidence(obs, goal) == (None, None)
 
 
 def test_bad_input_is_refused_with_the_reason(store, plain, tmp_path):

@@ -41,9 +41,11 @@ from vla_gr.core.encoders import PoseEncoder, RGBDEncoder, build_text_encoder, p
 from vla_gr.core.grounding import (
     GoalHead,
     ObjectCategorySegmenter,
+    ObjectEvidence,
     RoomTypeClassifier,
     category_match,
     goal_head_loss,
+    instructed_anchor,
     instructed_category,
     instructed_room,
     mask_confusion,
@@ -316,7 +318,7 @@ class VLAGRPolicy(nn.Module):
             c,
             self.s1,
             room_match=self.room_match if self.room_type is not None else None,
-            object_match=self.object_match if self.object_category is not None else None,
+            object_evidence=self.object_evidence if self.object_category is not None else None,
         )
 
     @torch.no_grad()
@@ -351,22 +353,30 @@ class VLAGRPolicy(nn.Module):
         return float(probs[0, index])
 
     @torch.no_grad()
-    def object_match(self, obs: Mapping, likelihood: np.ndarray) -> float | None:
-        """S2's object check: the mean probability that the pixels ``likelihood`` (H, W)
-        marks (``navigator.pixel_threshold``) show the category the instruction names; None
-        when too few are marked, the instruction names no known category, or the agent has
-        no segmenter."""
+    def object_evidence(self, obs: Mapping, likelihood: np.ndarray) -> ObjectEvidence:
+        """S2's object checks on one frame (:class:`ObjectEvidence`): the mean probability
+        that the pixels ``likelihood`` (H, W) marks (``navigator.pixel_threshold``) show the
+        category the instruction names (None when too few are marked or it names no known
+        category), and the per-pixel probability of a relation's anchor (None without one).
+        Both None when the agent has no segmenter."""
         if self.object_category is None:
-            return None
+            return ObjectEvidence()
         instruction = as_instructions(obs["instruction"], "obs['instruction']")[0]
         c = self.config.object_category
         index = instructed_category(instruction, c.categories)
+        anchor = instructed_anchor(instruction, c.categories)
         goal = np.asarray(likelihood) >= self.config.navigator.pixel_threshold  # (H, W)
-        if index is None or int(goal.sum()) < c.min_goal_pixels:
-            return None
+        if index is not None and int(goal.sum()) < c.min_goal_pixels:
+            index = None
+        if index is None and anchor is None:
+            return ObjectEvidence()
         frame = env_obs_to_frame(obs, device=self.action_scale.device)
-        probs = self.object_category.probabilities(frame["rgb"], frame["depth"])  # (1, 1+K, H, W)
-        return category_match(probs[0].cpu().numpy(), goal, index, c.min_goal_pixels)
+        probs = self.object_category.probabilities(frame["rgb"], frame["depth"])[0]
+        probs = probs.cpu().numpy()  # (1 + K, H, W)
+        return ObjectEvidence(
+            None if index is None else category_match(probs, goal, index, c.min_goal_pixels),
+            None if anchor is None else probs[anchor],
+        )
 
     def _dual_system_step(self, obs: Mapping) -> torch.Tensor:
         """One control step of the dual system (S2 every ``plan_every`` steps, S1 every step;

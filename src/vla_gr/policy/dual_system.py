@@ -12,8 +12,9 @@ true mask) + :class:`~vla_gr.core.gr_field.Navigator` (map, masses, potential, m
 geodesic; look around, multi-tick confirmation, approach, verify, recover, stop), and, when
 given, a room check (``room_match``: how likely the robot is in the room the instruction
 names; the policy's room-type classifier, :mod:`vla_gr.core.grounding.room_type`) and an
-object check (``object_match``: how likely the pixels the goal likelihood marks show the
-instructed category; :mod:`vla_gr.core.grounding.object_category`). S1
+object check (``object_evidence``: how likely the pixels the goal likelihood marks show the
+instructed category, and where a relation's anchor is; see
+:mod:`vla_gr.core.grounding.object_category`). S1
 (``model.s1.kind``) = the learned :class:`~vla_gr.core.dual_system.LearnedFollower` (RGB-D +
 the plan -> action chunk and STOP) or :class:`~vla_gr.core.dual_system.PurePursuit`; both
 carry the plan's waypoints into the current robot frame by odometry between ticks. The
@@ -35,8 +36,9 @@ from vla_gr.core.dual_system import (
     plan_interval,
 )
 from vla_gr.core.gr_field import GRFieldConfig, Navigator, NavigatorConfig, NavPlan
+from vla_gr.core.grounding import ObjectEvidence
 
-__all__ = ["GoalLikelihood", "GroundedDualSystem", "ObjectMatch", "RoomMatch"]
+__all__ = ["GoalLikelihood", "GroundedDualSystem", "ObjectCheck", "RoomMatch"]
 
 #: ``(obs) -> (H, W)`` per-pixel probability that the pixel shows the instructed object, or
 #: ``(obs) -> ((H, W), p)`` with ``p`` the probability that it is in view at all.
@@ -44,9 +46,9 @@ GoalLikelihood = Callable[[Mapping], np.ndarray | tuple[np.ndarray, float]]
 #: ``(obs) -> p``: probability that the robot is in a room of the instructed type (1 when the
 #: instruction names no room).
 RoomMatch = Callable[[Mapping], float]
-#: ``(obs, likelihood (H, W)) -> p or None``: probability that the pixels the likelihood marks
-#: show an object of the instructed category (None: no evidence on this tick).
-ObjectMatch = Callable[[Mapping, np.ndarray], float | None]
+#: ``(obs, likelihood (H, W)) -> ObjectEvidence``: probability that the pixels the likelihood
+#: marks show an object of the instructed category, and the anchor's per-pixel probability.
+ObjectCheck = Callable[[Mapping, np.ndarray], ObjectEvidence]
 
 
 class GroundedDualSystem:
@@ -59,7 +61,7 @@ class GroundedDualSystem:
         plan_every: control steps per S2 tick.
         s1: the learned S1 network; None = the pure-pursuit follower (``pursuit``).
         room_match: S2's room check (see :data:`RoomMatch`); None = every tick passes 1.
-        object_match: S2's object check (see :data:`ObjectMatch`); None = no evidence.
+        object_evidence: S2's object checks (see :data:`ObjectCheck`); None = no evidence.
     """
 
     def __init__(
@@ -71,11 +73,11 @@ class GroundedDualSystem:
         plan_every: int = 1,
         s1: S1Policy | None = None,
         room_match: RoomMatch | None = None,
-        object_match: ObjectMatch | None = None,
+        object_evidence: ObjectCheck | None = None,
     ) -> None:
         self.goal_likelihood = goal_likelihood
         self.room_match = room_match
-        self.object_match = object_match
+        self.object_evidence = object_evidence
         self.navigator = Navigator(navigator, field, plan_every=plan_every)
         self.follower = PurePursuit(pursuit) if s1 is None else LearnedFollower(s1)
         self.plan_every = self.navigator.plan_every
@@ -91,7 +93,7 @@ class GroundedDualSystem:
         model,
         s1: S1Policy | None = None,
         room_match: RoomMatch | None = None,
-        object_match: ObjectMatch | None = None,
+        object_evidence: ObjectCheck | None = None,
     ) -> GroundedDualSystem:
         """Built from a ``ModelConfig``: ``navigator``, ``gr_field``, the S1 of ``s1.kind``
         (``s1`` is the learned network, used when the kind is ``learned``) and the S2 schedule
@@ -107,7 +109,7 @@ class GroundedDualSystem:
             plan_every=plan_interval(d.control_frequency_hz, d.planning_frequency_hz),
             s1=s1 if model.s1.kind == "learned" else None,
             room_match=room_match,
-            object_match=object_match,
+            object_evidence=object_evidence,
         )
 
     def reset(self) -> None:
@@ -148,10 +150,14 @@ class GroundedDualSystem:
             raise ValueError(
                 f"goal likelihood has shape {likelihood.shape}, expected {depth.shape[:2]}"
             )
-        object_match = None if self.object_match is None else self.object_match(obs, likelihood)
+        evidence = (
+            ObjectEvidence()
+            if self.object_evidence is None
+            else self.object_evidence(obs, likelihood)
+        )
         t_perceived = time.perf_counter()
         self.plan = self.navigator.plan(
-            {"depth": depth, "pose": pose}, likelihood, visible, room_match, object_match
+            {"depth": depth, "pose": pose}, likelihood, visible, room_match, *evidence
         )
         self.follower.set_plan(self.plan, pose)
         self.last_likelihood = likelihood

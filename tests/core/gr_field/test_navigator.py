@@ -444,6 +444,42 @@ def test_the_object_check_rejects_a_goal_of_another_category_and_ignores_ticks_w
     assert plans[1].stop and nav.rejections == 0
 
 
+def test_the_relation_check_rejects_a_goal_without_its_anchor_mapped_near():
+    near = (ROOM[1] - 0.6, 0.0, 0.0)  # facing the +x wall, 0.6 m away
+    depth = room_depth(near)
+    like = wall_goal(depth)  # the goal: the central columns of the wall
+    n = depth.shape[1]
+
+    def anchor_at(cols):
+        """The anchor on the wall pixels of ``cols``."""
+        out = np.zeros_like(like)
+        out[:, cols] = (like.sum(1) > 0)[:, None]  # the goal's wall rows
+        return out
+
+    beside = anchor_at(slice(n // 2 + 4, n // 2 + 8))  # right beside the goal
+    apart = anchor_at(slice(n - 3, n))  # the wall's far right edge, about 0.5 m from it
+
+    def run(anchor, distance=0.2):
+        nav = make_nav(look_around_angle=0.0, stop_distance=0.8, relation_distance=distance)
+        pose = np.array(near, np.float32)
+        plans = [nav.plan({"depth": depth, "pose": pose}, like, 1.0, 1.0, None, anchor)
+                 for _ in range(2)]  # fmt: skip
+        return nav, plans
+
+    nav, plans = run(beside)
+    assert plans[1].stop and nav.stop_evidence["anchor_near"] is True
+    nav, plans = run(apart)  # mapped, but farther than relation_distance
+    assert not plans[1].stop and nav.rejections == 1
+    nav, plans = run(apart, distance=1.0)  # within a wider distance
+    assert plans[1].stop and nav.stop_evidence["anchor_near"] is True
+    nav, plans = run(np.zeros_like(like))  # never seen
+    assert not plans[1].stop and nav.rejections == 1
+    nav, plans = run(None)  # the instruction names no anchor: no check
+    assert plans[1].stop and nav.stop_evidence["anchor_near"] is None
+    nav, plans = run(np.zeros_like(like), distance=0.0)  # off: recorded, not acted on
+    assert plans[1].stop and nav.stop_evidence["anchor_near"] is False
+
+
 @pytest.mark.parametrize(
     "overrides, key",
     [
@@ -451,6 +487,7 @@ def test_the_object_check_rejects_a_goal_of_another_category_and_ignores_ticks_w
         ({"room_ticks": 0}, "room_ticks"),
         ({"object_reject_threshold": -0.1}, "object_reject_threshold"),
         ({"object_ticks": 0}, "object_ticks"),
+        ({"relation_distance": -1.0}, "relation_distance"),
     ],
 )
 def test_room_check_settings_out_of_range_name_the_key(overrides, key):

@@ -12,6 +12,7 @@ from vla_gr.core.grounding import (
     ObjectCategoryConfig,
     ObjectCategorySegmenter,
     category_match,
+    instructed_anchor,
     instructed_category,
 )
 
@@ -64,6 +65,23 @@ def test_category_match_is_the_mean_probability_over_the_goal_pixels():
 def test_instructed_category_reads_the_goal_not_the_relation_anchor(instruction, category):
     expected = None if category is None else CATEGORIES.index(category) + 1
     assert instructed_category(instruction, CATEGORIES) == expected
+
+
+@pytest.mark.parametrize(
+    "instruction, anchor",
+    [
+        ("Find the chair near the plant", "plant"),
+        ("Go to the purple sofa by the tv", "tv_monitor"),
+        ("can you go to the orange chair beside the sofa?", "sofa"),
+        ("Move to the chair next to the cabinet in the kitchen", "cabinet"),
+        ("find the red chair in the kitchen", None),  # no relation
+        ("find the chair near the window", None),  # an anchor outside the categories
+        ("find the chair near the lamp by the bed", None),  # only the first relation counts
+    ],
+)
+def test_instructed_anchor_reads_the_category_right_after_the_relation(instruction, anchor):
+    expected = None if anchor is None else CATEGORIES.index(anchor) + 1
+    assert instructed_anchor(instruction, CATEGORIES) == expected
 
 
 def test_bad_settings_name_the_key():

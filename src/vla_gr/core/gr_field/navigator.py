@@ -102,6 +102,10 @@ class NavigatorConfig:
     # instructed category is below this
     object_reject_threshold: float = 0.0  # 0 = off
     object_ticks: int = 3
+    # relation instructions ("the chair near the plant"): the anchor's pixels vote for map
+    # cells like goal pixels do; near a confirmed goal, reject it when no anchor cell (votes on
+    # confirm_ticks ticks) lies within this distance of the goal's cells
+    relation_distance: float = 0.0  # m; 0 = off
     confirm_ticks: int = 2  # ticks with goal votes before a cell is a goal
     min_goal_pixels: int = 3  # goal pixels for "the goal is in view now"
     stop_distance: float = 0.8  # m from the robot centre to a confirmed goal cell
@@ -149,7 +153,7 @@ class NavigatorConfig:
                     "stop_distance_at_end", "path_end_distance",
                     "virtual_obstacle_radius", "virtual_obstacle_hits",
                     "visited_clear_radius", "tight_radius", "trap_radius",
-                    "trap_obstacle_radius"):  # fmt: skip
+                    "trap_obstacle_radius", "relation_distance"):  # fmt: skip
             if not getattr(self, key) >= 0:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 0")
         for key in ("confirm_ticks", "min_goal_pixels", "verify_steps", "stuck_steps",
@@ -240,6 +244,9 @@ class Navigator:
         self.room_matches: deque[float] = deque(maxlen=self.config.room_ticks)  # last ticks'
         # the object check of the last ticks with evidence (cleared when a goal is rejected)
         self.object_matches: deque[float] = deque(maxlen=self.config.object_ticks)
+        self.anchor_votes = np.zeros(shape, np.int32)  # (H, W) ticks with anchor pixels per cell
+        self._tick_frame, self._projected = None, None  # this tick's depth, pose; their cells
+        self.has_anchor = False  # the instruction names a relation's anchor (it was given)
         self.last_output = None
         self.last_latency = 0.0
 
@@ -252,6 +259,7 @@ class Navigator:
         goal_visible: float = 1.0,
         room_match: float = 1.0,
         object_match: float | None = None,
+        anchor_likelihood=None,
     ) -> NavPlan:
         """One planner tick.
 
@@ -267,6 +275,9 @@ class Navigator:
             object_match: probability that this frame's goal pixels show an object of the
                 instructed category (None: no evidence this tick); see
                 ``object_reject_threshold``.
+            anchor_likelihood: (H, W) per-pixel probability of the category a relation
+                instruction names as its anchor; None when it names none. See
+                ``relation_distance``.
         """
         t0 = time.perf_counter()
         cfg = self.config
@@ -280,7 +291,13 @@ class Navigator:
         if object_match is not None:
             self.object_matches.append(float(object_match))
         self.tick_goal_pixels = 0  # set by _vote; stays 0 on a tick that casts no votes
-        visible = votes_allowed and self._vote(depth, pose, like)  # goal pixels in view now
+        self._tick_frame, self._projected = (depth, pose), None  # projected on demand
+        visible = votes_allowed and self._vote(like)  # goal pixels in view now
+        if anchor_likelihood is not None:
+            self.has_anchor = True
+            anchor = torch.as_tensor(np.asarray(anchor_likelihood, np.float32)).reshape(1, -1)
+            rc = self._pixel_cells(anchor)  # (M, 2)
+            self.anchor_votes[rc[:, 0], rc[:, 1]] += 1
         confirmed = self.goal_votes >= cfg.confirm_ticks  # (H, W)
         gate = torch.from_numpy(confirmed)[None]  # (1, H, W)
         if self.tight_left > 0:
@@ -302,7 +319,7 @@ class Navigator:
         plan = self._decide(out, p, robot_xy, visible, goal_visible, distance, nearest)
         plan.goal_confidence, plan.goal_distance = confidence, distance
         if plan.stop and not self.stop_evidence:
-            self.stop_evidence = self._evidence(goal_cells, goal_visible, like, distance)
+            self.stop_evidence = self._evidence(goal_cells, goal_visible, like, distance, nearest)
         plan.max_speed = cfg.tight_speed if self.tight_left > 0 else 1.0
         self.mode = plan.mode
         self.ticks += 1
@@ -331,7 +348,7 @@ class Navigator:
         )
         near = distance <= (cfg.stop_distance_at_end if at_end else cfg.stop_distance)
         if self.committed and near:
-            if self._wrong_room() or self._wrong_object():
+            if self._wrong_room() or self._wrong_object() or self._no_anchor_near(nearest):
                 return self._abandon_goal(nearest)
             verified = float(goal_visible) >= cfg.stop_visible_threshold
             if visible and verified:
@@ -389,21 +406,13 @@ class Navigator:
     def _reject_goal(self, centre: np.ndarray) -> None:
         """Give up the confirmed goal with a cell centred at ``centre`` (2,) (metres from the
         grid corner): its connected cells and their two-cell rim lose their votes for good."""
-        confirmed = self.goal_votes >= self.config.confirm_ticks  # (H, W)
-        grown = ndimage.binary_dilation(confirmed, iterations=2)  # (H, W) with a 2-cell rim
-        labels, _ = ndimage.label(grown, np.ones((3, 3), bool))
-        row, col = (np.asarray(centre) / self.field.config.cell_size).astype(int)[::-1]
-        if labels[row, col]:
-            goal = labels == labels[row, col]  # (H, W) this goal's cells and rim
-        else:  # not (or no longer) a confirmed cell: its neighbourhood only
-            goal = np.zeros_like(confirmed)
-            goal[max(row - 2, 0) : row + 3, max(col - 2, 0) : col + 3] = True
+        goal = self._goal_component(centre, rim=2)  # (H, W) this goal's cells and rim
         self.rejected |= goal
         self.goal_votes[goal] = 0
         self.object_matches.clear()  # evidence about the rejected goal
         self.committed = False
         self.rejections += 1
-        logger.debug("navigator: goal at cell %s rejected", (row, col))
+        logger.debug("navigator: goal at %s m rejected", np.round(np.asarray(centre), 2))
 
     def _wrong_room(self) -> bool:
         """The room check: the last ticks say the robot is not in the instructed room."""
@@ -419,6 +428,36 @@ class Navigator:
             and float(np.mean(self.object_matches)) < threshold
         )
 
+    def _goal_component(self, centre: np.ndarray, rim: int = 0) -> np.ndarray:
+        """Cells (H, W) bool of the confirmed goal with a cell centred at ``centre`` (2,)
+        (metres from the grid corner), grown by ``rim`` cells; its 5 x 5 neighbourhood when
+        that cell is not (or no longer) a confirmed one."""
+        confirmed = self.goal_votes >= self.config.confirm_ticks  # (H, W)
+        grown = ndimage.binary_dilation(confirmed, iterations=rim) if rim else confirmed
+        labels, _ = ndimage.label(grown, np.ones((3, 3), bool))
+        row, col = (np.asarray(centre) / self.field.config.cell_size).astype(int)[::-1]
+        if labels[row, col]:
+            return labels == labels[row, col]
+        goal = np.zeros_like(confirmed)
+        goal[max(row - 2, 0) : row + 3, max(col - 2, 0) : col + 3] = True
+        return goal
+
+    def _anchor_near(self, nearest: np.ndarray) -> bool | None:
+        """Whether a mapped anchor cell lies within ``relation_distance`` of the goal at
+        ``nearest``; None when the instruction names no anchor."""
+        if not self.has_anchor or nearest is None:
+            return None
+        anchor = self.anchor_votes >= self.config.confirm_ticks  # (H, W)
+        if not anchor.any():
+            return False
+        goal = self._goal_component(nearest)  # (H, W)
+        to_anchor = ndimage.distance_transform_edt(~anchor) * self.field.config.cell_size
+        return bool(to_anchor[goal].min() <= max(self.config.relation_distance, 1e-6) + 1e-9)
+
+    def _no_anchor_near(self, nearest: np.ndarray) -> bool:
+        """The relation check: no anchor mapped near the goal the robot stands at."""
+        return self.config.relation_distance > 0.0 and self._anchor_near(nearest) is False
+
     def _abandon_goal(self, nearest: np.ndarray) -> NavPlan:
         """Reject the committed goal nearest ``nearest`` (2,), reset the counters that led
         here (verification, dead end) and turn in place to explore on."""
@@ -433,9 +472,12 @@ class Navigator:
             self.drives.clear()
         return NavPlan(np.zeros((0, 2)), mode, 0.0, False, command=command)
 
-    def _evidence(self, goal_cells: np.ndarray, goal_visible: float, like, distance) -> dict:
+    def _evidence(
+        self, goal_cells: np.ndarray, goal_visible: float, like, distance, nearest
+    ) -> dict:
         """The goal evidence behind a STOP: per-frame visible probability, goal pixels and
-        peak likelihood now, and the votes of the confirmed goal cells."""
+        peak likelihood now, the votes of the confirmed goal cells, and the checks (room,
+        object category, an anchor mapped near the goal; None where they have no input)."""
         votes = self.goal_votes[goal_cells]  # (M,) of the confirmed cells
         return {
             "goal_visible": round(float(goal_visible), 4),
@@ -449,31 +491,46 @@ class Navigator:
             "object_match": (
                 round(float(np.mean(self.object_matches)), 4) if self.object_matches else None
             ),
+            "anchor_near": self._anchor_near(nearest),
             "tick": int(self.ticks),
         }
 
-    def _vote(self, depth, pose, like) -> bool:
-        """Add one vote to every cell goal pixels land in this tick; True if the goal is in view.
-
-        Args:
-            depth: (1, H, W); pose: (1, 3); like: (1, H, W).
-        """
-        cfg, fcfg = self.config, self.field_config
-        hits = (like >= cfg.pixel_threshold).reshape(1, -1)  # (1, N)
-        if not bool(hits.any()):
-            return False
+    def _project(self):
+        """This tick's pixels on the map: (cells (1, N, 2), usable (1, N)), usable = a valid
+        depth reading that lands inside the grid; computed once per tick."""
+        if self._projected is not None:
+            return self._projected
+        depth, pose = self._tick_frame  # (1, H, W), (1, 3)
+        fcfg = self.field_config
         points, valid = project_depth(
             depth, fcfg.hfov_deg, pose, fcfg.camera_height, fcfg.camera_forward_offset,
             fcfg.min_depth, fcfg.max_depth,
         )  # (1, N, 3), (1, N)  # fmt: skip
-        keep = hits & valid  # (1, N)
         cells, inside = points_to_cells(points[..., :2], self.field.grid)  # (1, N, 2), (1, N)
-        keep = keep & inside
-        self.tick_goal_pixels = int(keep.sum())
-        visible = self.tick_goal_pixels >= cfg.min_goal_pixels
-        if bool(keep.any()):
-            rc = np.unique(cells[keep].numpy(), axis=0)  # (M, 2) distinct cells this tick
-            rc = rc[~self.rejected[rc[:, 0], rc[:, 1]]]  # rejected goals cast no votes
+        self._projected = (cells, valid & inside)
+        return self._projected
+
+    def _pixel_cells(self, probability: torch.Tensor) -> np.ndarray:
+        """Distinct cells (M, 2) that this tick's pixels with ``probability`` (1, N) >=
+        pixel_threshold land in, outside rejected goals."""
+        hits = probability >= self.config.pixel_threshold  # (1, N)
+        if not bool(hits.any()):
+            return np.zeros((0, 2), np.int64)
+        cells, usable = self._project()
+        keep = hits & usable  # (1, N)
+        rc = np.unique(cells[keep].numpy(), axis=0) if bool(keep.any()) else cells[0, :0].numpy()
+        return rc[~self.rejected[rc[:, 0], rc[:, 1]]]
+
+    def _vote(self, like) -> bool:
+        """Add one vote to every cell goal pixels (``like`` (1, H, W)) land in this tick; True
+        if the goal is in view."""
+        hits = (like >= self.config.pixel_threshold).reshape(1, -1)  # (1, N)
+        if not bool(hits.any()):
+            return False
+        self.tick_goal_pixels = int((hits & self._project()[1]).sum())
+        visible = self.tick_goal_pixels >= self.config.min_goal_pixels
+        rc = self._pixel_cells(like.reshape(1, -1))  # (M, 2)
+        if self.tick_goal_pixels:
             self.goal_votes[rc[:, 0], rc[:, 1]] += 1
             self.ever_seen_goal = True
         return visible

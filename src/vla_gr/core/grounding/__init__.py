@@ -12,7 +12,9 @@ from vla_gr.core.grounding.losses import (
 from vla_gr.core.grounding.object_category import (
     ObjectCategoryConfig,
     ObjectCategorySegmenter,
+    ObjectEvidence,
     category_match,
+    instructed_anchor,
     instructed_category,
 )
 from vla_gr.core.grounding.room_type import RoomTypeClassifier, RoomTypeConfig, instructed_room
@@ -23,11 +25,13 @@ __all__ = [
     "GroundingConfig",
     "ObjectCategoryConfig",
     "ObjectCategorySegmenter",
+    "ObjectEvidence",
     "RoomTypeClassifier",
     "RoomTypeConfig",
     "category_match",
     "confusion_metrics",
     "goal_head_loss",
+    "instructed_anchor",
     "instructed_category",
     "instructed_room",
     "mask_confusion",

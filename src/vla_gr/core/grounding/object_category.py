@@ -12,6 +12,10 @@ that goal and exploration goes on (``navigator.object_reject_threshold``).
 - :func:`instructed_category`: the category an instruction names ("the red chair ..."); None
   when it names none of them, and the check stays off for that episode.
 - :func:`category_match`: mean probability of a category over a goal mask.
+- :func:`instructed_anchor`: the category a relation names ("... near the plant" -> plant);
+  its per-pixel probability lets the navigator map the anchor and check that the goal it
+  stands at has one near (``navigator.relation_distance``).
+- :class:`ObjectEvidence`: what one S2 tick hands the navigator.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, field
 from functools import lru_cache
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -31,8 +36,10 @@ from vla_gr.validation import check_positive
 
 __all__ = [
     "ObjectCategoryConfig",
+    "ObjectEvidence",
     "ObjectCategorySegmenter",
     "category_match",
+    "instructed_anchor",
     "instructed_category",
     "spoken_name",
 ]
@@ -64,6 +71,15 @@ class ObjectCategoryConfig:
             )
         check_positive("model.object_category.max_depth", self.max_depth)
         check_positive("model.object_category.min_goal_pixels", self.min_goal_pixels)
+
+
+class ObjectEvidence(NamedTuple):
+    """One S2 tick's object evidence: ``match`` = probability that the goal pixels show the
+    instructed category (None: no evidence); ``anchor`` = (H, W) probability of the relation's
+    anchor category (None: the instruction names no relation)."""
+
+    match: float | None = None
+    anchor: np.ndarray | None = None
 
 
 def _block(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
@@ -154,16 +170,36 @@ def _category_pattern(categories: tuple[str, ...]) -> re.Pattern:
 _RELATION = re.compile(r"\b(?:next to|near|beside|by)\b", re.IGNORECASE)
 
 
+def _named_category(text: str, categories: tuple[str, ...] | list[str]) -> int | None:
+    """1-based class index of the first of ``categories`` that ``text`` names, or None."""
+    found = _category_pattern(tuple(categories)).search(text)
+    if found is None:
+        return None
+    return [spoken_name(c) for c in categories].index(found.group(1).lower()) + 1
+
+
+def _split_relation(instruction: str) -> tuple[str, str | None]:
+    """(the words before the first relation word, those after it or None without one)."""
+    if not isinstance(instruction, str):
+        raise TypeError(f"instruction must be a str, got {type(instruction).__name__}")
+    relation = _RELATION.search(instruction)
+    if relation is None:
+        return instruction, None
+    return instruction[: relation.start()], instruction[relation.end() :]
+
+
 def instructed_category(instruction: str, categories: tuple[str, ...] | list[str]) -> int | None:
     """1-based class index (as in :func:`category_match`) of the first category
     ``instruction`` names before any relation word ("the chair near the plant" -> chair),
     or None when it names none of ``categories`` there."""
-    if not isinstance(instruction, str):
-        raise TypeError(f"instruction must be a str, got {type(instruction).__name__}")
-    relation = _RELATION.search(instruction)
-    head = instruction if relation is None else instruction[: relation.start()]
-    found = _category_pattern(tuple(categories)).search(head)
-    if found is None:
+    return _named_category(_split_relation(instruction)[0], categories)
+
+
+def instructed_anchor(instruction: str, categories: tuple[str, ...] | list[str]) -> int | None:
+    """1-based class index of the category right after the relation word ("the chair near
+    the plant" -> plant); None without a relation or when it names none of ``categories``."""
+    tail = _split_relation(instruction)[1]
+    if tail is None:
         return None
-    spoken = [spoken_name(c) for c in categories]
-    return spoken.index(found.group(1).lower()) + 1
+    found = re.match(r"\s*(?:the\s+)?(\w+(?:\s\w+)?)", tail)
+    return None if found is None else _named_category(found.group(0), categories)
