@@ -467,17 +467,17 @@ def test_the_relation_check_rejects_a_goal_without_its_anchor_mapped_near():
         return nav, plans
 
     nav, plans = run(beside)
-    assert plans[1].stop and nav.stop_evidence["anchor_near"] is True
+    assert plans[1].stop and nav.stop_evidence["anchor_distance"] <= 0.2
     nav, plans = run(apart)  # mapped, but farther than relation_distance
     assert not plans[1].stop and nav.rejections == 1
     nav, plans = run(apart, distance=1.0)  # within a wider distance
-    assert plans[1].stop and nav.stop_evidence["anchor_near"] is True
+    assert plans[1].stop and 0.2 < nav.stop_evidence["anchor_distance"] <= 1.0
     nav, plans = run(np.zeros_like(like))  # never seen
     assert not plans[1].stop and nav.rejections == 1
     nav, plans = run(None)  # the instruction names no anchor: no check
-    assert plans[1].stop and nav.stop_evidence["anchor_near"] is None
+    assert plans[1].stop and nav.stop_evidence["anchor_distance"] is None
     nav, plans = run(np.zeros_like(like), distance=0.0)  # off: recorded, not acted on
-    assert plans[1].stop and nav.stop_evidence["anchor_near"] is False
+    assert plans[1].stop and nav.stop_evidence["anchor_cells"] == 0
 
 
 @pytest.mark.parametrize(

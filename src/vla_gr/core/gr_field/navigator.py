@@ -442,21 +442,25 @@ class Navigator:
         goal[max(row - 2, 0) : row + 3, max(col - 2, 0) : col + 3] = True
         return goal
 
-    def _anchor_near(self, nearest: np.ndarray) -> bool | None:
-        """Whether a mapped anchor cell lies within ``relation_distance`` of the goal at
-        ``nearest``; None when the instruction names no anchor."""
+    def _anchor_distance(self, nearest: np.ndarray) -> float | None:
+        """Metres (between cell centres) from the goal at ``nearest`` to the nearest mapped
+        anchor cell: inf when none is mapped, None when the instruction names no anchor."""
         if not self.has_anchor or nearest is None:
             return None
         anchor = self.anchor_votes >= self.config.confirm_ticks  # (H, W)
         if not anchor.any():
-            return False
+            return math.inf
         goal = self._goal_component(nearest)  # (H, W)
-        to_anchor = ndimage.distance_transform_edt(~anchor) * self.field.config.cell_size
-        return bool(to_anchor[goal].min() <= max(self.config.relation_distance, 1e-6) + 1e-9)
+        to_anchor = ndimage.distance_transform_edt(~anchor)  # (H, W) cells to the anchor
+        return float(to_anchor[goal].min()) * self.field.config.cell_size
 
     def _no_anchor_near(self, nearest: np.ndarray) -> bool:
-        """The relation check: no anchor mapped near the goal the robot stands at."""
-        return self.config.relation_distance > 0.0 and self._anchor_near(nearest) is False
+        """The relation check: no anchor mapped within ``relation_distance`` of the goal the
+        robot stands at."""
+        if self.config.relation_distance <= 0.0:
+            return False
+        distance = self._anchor_distance(nearest)
+        return distance is not None and distance > self.config.relation_distance + 1e-9
 
     def _abandon_goal(self, nearest: np.ndarray) -> NavPlan:
         """Reject the committed goal nearest ``nearest`` (2,), reset the counters that led
@@ -491,7 +495,9 @@ class Navigator:
             "object_match": (
                 round(float(np.mean(self.object_matches)), 4) if self.object_matches else None
             ),
-            "anchor_near": self._anchor_near(nearest),
+            # None: no anchor named, or none mapped (then anchor_cells is 0)
+            "anchor_distance": _finite_or_none(self._anchor_distance(nearest)),
+            "anchor_cells": int((self.anchor_votes >= self.config.confirm_ticks).sum()),
             "tick": int(self.ticks),
         }
 
@@ -680,3 +686,8 @@ class Navigator:
         seen = (state[:, cells[:, 0], cells[:, 1]] > 0).any(dim=0)  # (D,)
         cells = cells[~seen]
         state[FREE_HITS, cells[:, 0], cells[:, 1]] += 1.0
+
+
+def _finite_or_none(value: float | None) -> float | None:
+    """``value`` rounded to millimetres; None for None or inf (JSON has no infinity)."""
+    return None if value is None or not math.isfinite(value) else round(float(value), 3)
