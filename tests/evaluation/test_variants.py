@@ -122,15 +122,16 @@ def test_true_mask_on_a_checkpoint_uses_its_dual_system(dual, tmp_path):
         check_agent("true_mask", eval_cfg(f"checkpoint={e2e}"))
 
 
-def test_true_category_runs_the_checkpoints_room_check_and_true_mask_needs_none(tmp_path):
+def test_true_category_runs_the_checkpoints_checks_and_true_mask_needs_none(tmp_path):
     room = write_checkpoint(
         tmp_path, "model.agent=dual_system", "model.room_type.enabled=true",
-        "model.navigator.room_reject_threshold=0.2",
+        "model.navigator.room_reject_threshold=0.2", "model.object_category.enabled=true",
     )  # fmt: skip
     world = Namespace(unwrapped=Namespace())
     agent = TrueCategoryAgent(eval_cfg(f"checkpoint={room}"), world)
     assert agent.policy.room_type is not None
     assert agent.system.room_match == agent.policy.room_match
+    assert agent.system.object_evidence == agent.policy.object_evidence
     # the ceiling knows the goal's pixels: nothing to check
     assert make_agent("true_mask", eval_cfg(f"checkpoint={room}"), world).system.room_match is None
 

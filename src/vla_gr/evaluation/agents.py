@@ -254,7 +254,7 @@ class TrueCategoryAgent(TrueMaskAgent):
     the instructed instance among same-category ones, but never fires on another category.
     Between ``checkpoint`` and ``true_mask`` it tells how much of the gap is category
     recognition. Needs a dual-system ``eval.checkpoint`` (with ``eval.model_overrides``); its
-    room check, if it has one, runs as in the checkpoint's agent.
+    room and object checks, if it has them, run as in the checkpoint's agent.
     """
 
     name = "true_category"
@@ -266,9 +266,13 @@ class TrueCategoryAgent(TrueMaskAgent):
             raise AgentError("agent=true_category gates a checkpoint's goal head; give checkpoint=")
         self.env = env
         self.policy = checkpoint_policy(cfg, dual_system=True, agent=self.name)
-        room_match = self.policy.room_match if self.policy.room_type is not None else None
+        p = self.policy
         self.system = GroundedDualSystem.from_model_config(
-            self._gated, self.policy.config, self.policy.s1, room_match=room_match
+            self._gated,
+            p.config,
+            p.s1,
+            room_match=p.room_match if p.room_type is not None else None,
+            object_evidence=p.object_evidence if p.object_category is not None else None,
         )
 
     def _gated(self, obs) -> tuple[np.ndarray, float]:
