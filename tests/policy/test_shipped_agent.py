@@ -20,6 +20,10 @@ def test_shipped_checkpoint_is_the_dual_system_and_small():
     # S2's room check is on: a trained room-type classifier and a rejection threshold
     assert policy.room_type is not None and policy.dual_system.room_match == policy.room_match
     assert 0.0 < policy.config.navigator.room_reject_threshold < 0.5
+    # and its object checks: a trained segmenter, the category threshold, the relation distance
+    assert policy.object_category is not None
+    assert policy.dual_system.object_evidence == policy.object_evidence
+    assert 0.0 < policy.config.navigator.object_reject_threshold < 0.5
     size = sum(f.stat().st_size for f in SHIPPED.rglob("*") if f.is_file())
     assert size <= 20 * 2**20
 
