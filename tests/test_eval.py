@@ -225,6 +225,20 @@ def test_a_trained_checkpoint_reports_latency_and_parameters(tmp_path, checkpoin
     assert metrics["checkpoint"] == str(checkpoint)
 
 
+def test_a_run_on_a_checkpoint_rewritten_in_place_is_not_resumed(tmp_path, checkpoint):
+    from vla_gr.policy.export import export_pretrained
+
+    ckpt, out = tmp_path / "agent", tmp_path / "run"
+    export_pretrained(checkpoint, ckpt)
+    args = (f"checkpoint={ckpt}", "num_episodes=1", "env.max_episode_steps=8")
+    first = evaluate(cfg_for(out, *args))
+    assert first["checkpoint_digest"] and len(first["checkpoint_digest"]) == 64
+    assert evaluate(cfg_for(out, *args))["checkpoint_digest"] == first["checkpoint_digest"]
+    export_pretrained(checkpoint, ckpt, ["navigator.confirm_ticks=4"])  # same path, new agent
+    with pytest.raises(EvalInputError, match="checkpoint_digest"):
+        evaluate(cfg_for(out, *args))
+
+
 @pytest.mark.parametrize(
     "overrides, message",
     [

@@ -16,6 +16,7 @@ the library calls training's closed-loop validation uses: the same episode loop.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import sys
@@ -105,6 +106,8 @@ def run_header(cfg, agent: str, source: str, indices: Sequence[int]) -> dict:
         "agent": agent,
         **({"base_agent": base} if base != agent else {}),
         "checkpoint": checkpoint,
+        # what the path held: a run resumed on a checkpoint rewritten in place is refused
+        "checkpoint_digest": checkpoint_digest(checkpoint) if checkpoint else None,
         "model_overrides": list(sub.eval.model_overrides) if checkpoint else [],
         "episodes_source": source,
         "first_episode": indices[0],
@@ -128,6 +131,20 @@ def run_header(cfg, agent: str, source: str, indices: Sequence[int]) -> dict:
         },
         "vla_gr_version": __version__,
     }
+
+
+def checkpoint_digest(path: str | Path) -> str | None:
+    """SHA-256 over the weights' and config's hashes in checkpoint ``path``'s manifest (what
+    an agent loaded from it does); None for a folder without a manifest."""
+    manifest = Path(path) / "manifest.json"
+    if not manifest.is_file():
+        return None
+    try:
+        files = json.loads(manifest.read_text())["files"]
+        hashes = {name: files[name]["sha256"] for name in ("config.yaml", "model.safetensors")}
+    except (ValueError, KeyError, TypeError) as err:
+        raise EvalInputError(f"checkpoint {path}: unreadable manifest.json ({err})") from err
+    return hashlib.sha256(json.dumps(hashes, sort_keys=True).encode()).hexdigest()
 
 
 def default_agent(cfg) -> str:
