@@ -344,12 +344,12 @@ def test_the_room_check_is_asked_once_per_s2_tick_and_reaches_the_navigator():
     for _ in range(7):
         model.select_action(_obs())
     assert len(asked) == 3  # steps 0, 3, 6
-    assert list(system.navigator.room_matches) == [0.25, 0.25, 0.25]
+    assert list(system.navigator.checks.room_matches) == [0.25, 0.25, 0.25]
     # without the classifier S2 passes 1 on every tick
     plain = _model()
     assert plain.room_type is None and plain.dual_system.room_match is None
     plain.select_action(_obs())
-    assert list(plain.dual_system.navigator.room_matches) == [1.0]
+    assert list(plain.dual_system.navigator.checks.room_matches) == [1.0]
 
 
 def test_the_object_checks_read_the_ticks_likelihood_and_reach_the_navigator():
@@ -378,10 +378,10 @@ def test_the_object_checks_read_the_ticks_likelihood_and_reach_the_navigator():
     for _ in range(7):
         model.select_action(_obs())
     assert len(asked) == 3 and asked[-1] is system.last_likelihood  # steps 0, 3, 6
-    assert list(system.navigator.object_matches) == [0.25, 0.25, 0.25]
-    assert system.navigator.has_anchor and system.navigator.anchor_votes.max() == 3
+    assert list(system.navigator.checks.object_matches) == [0.25, 0.25, 0.25]
+    assert system.navigator.checks.has_anchor and system.navigator.checks.anchor_votes.max() == 3
     plain = _model()
     assert plain.object_category is None and plain.dual_system.object_evidence is None
     plain.select_action(_obs())
-    assert list(plain.dual_system.navigator.object_matches) == []
-    assert not plain.dual_system.navigator.has_anchor
+    assert list(plain.dual_system.navigator.checks.object_matches) == []
+    assert not plain.dual_system.navigator.checks.has_anchor

@@ -428,7 +428,7 @@ def test_the_object_check_rejects_a_goal_of_another_category_and_ignores_ticks_w
     # the goal pixels confidently show another category: rejected when confirmed and near
     nav, plans = run([0.1, 0.1])
     assert not any(p.stop for p in plans) and nav.rejections == 1 and nav.rejected.any()
-    assert len(nav.object_matches) == 0  # the rejected goal's evidence goes with it
+    assert len(nav.checks.object_matches) == 0  # the rejected goal's evidence goes with it
     # the mean of the last object_ticks values with evidence decides
     nav, plans = run([0.9, 0.2])
     assert plans[1].stop and nav.stop_evidence["object_match"] == pytest.approx(0.55)

@@ -14,9 +14,8 @@ Modes and transitions (checked in this order every tick)::
                  stop_visible_threshold) the goal head's "goal visible" probability this high
     verify       the same but not (yet) verified: turn towards it (verify_steps at most); then
                  stop anyway, or with stop_visible_threshold reject that goal and explore on;
-                 a goal near which the robot is confidently not in the instructed room
-                 (room_reject_threshold), or whose pixels confidently show another
-                 category (object_reject_threshold), is rejected before either
+                 a goal that fails a goal check (room, category, relation) is rejected
+                 before either
     approach     a confirmed goal: follow the field's geodesic to its stand-off; a goal the
                  robot has stood at the end of the path to for dead_end_steps without being
                  able to stop (not within stop distance in line of sight) is rejected
@@ -27,15 +26,10 @@ Multi-frame confirmation: a map cell becomes a goal for the field (``GRField.upd
 single false positive never attracts. Approach-and-verify: with ``stop_visible_threshold`` a
 STOP also needs the goal head's per-frame "goal visible" probability, seen from close range; a
 goal that never reaches it within ``verify_steps`` is rejected: its cells lose their votes and
-cast none again, and the robot explores on. Room check: for an instruction that names a room,
-each tick also gets the probability that the robot stands in a room of that type
-(:mod:`vla_gr.core.grounding.room_type`); near a confirmed goal, a mean over the last
-``room_ticks`` ticks below ``room_reject_threshold`` rejects the goal the same way (a
-same-category twin in another room). Object check: each tick with goal pixels may also get
-the probability that they show the instructed category
-(:mod:`vla_gr.core.grounding.object_category`); a mean over the last ``object_ticks`` such
-ticks below ``object_reject_threshold`` rejects a goal near which the robot stands (another
-object marked for the goal). The same happens to a dead end: a goal whose path
+cast none again, and the robot explores on. Goal checks
+(:mod:`vla_gr.core.gr_field.goal_checks`): near a confirmed goal, the room the robot stands in,
+the category the goal pixels show and, for a relation, an anchor mapped near the goal can
+reject it the same way. The same happens to a dead end: a goal whose path
 ends where the robot stands but which is not in line of sight within the stop distance (the
 head fired on something behind furniture or a wall), which would otherwise hold the robot
 there until the step budget runs out. Blocked: the plan wanted to drive ahead (its pursuit
@@ -70,6 +64,7 @@ import torch
 from scipy import ndimage
 
 from vla_gr.core.gr_field.config import GRFieldConfig
+from vla_gr.core.gr_field.goal_checks import GoalChecks
 from vla_gr.core.gr_field.mapping import FREE_HITS, OCC_HITS, points_to_cells
 from vla_gr.core.gr_field.planning import GRField
 from vla_gr.geometry.camera import project_depth
@@ -241,12 +236,8 @@ class Navigator:
         self.ever_seen_goal = False
         self.tick_goal_pixels = 0  # goal pixels of this tick that landed on the map
         self.stop_evidence: dict[str, float] = {}  # what S2 saw on the tick it asked to STOP
-        self.room_matches: deque[float] = deque(maxlen=self.config.room_ticks)  # last ticks'
-        # the object check of the last ticks with evidence (cleared when a goal is rejected)
-        self.object_matches: deque[float] = deque(maxlen=self.config.object_ticks)
-        self.anchor_votes = np.zeros(shape, np.int32)  # (H, W) ticks with anchor pixels per cell
+        self.checks = GoalChecks(self.config, shape, self.field.config.cell_size)
         self._tick_frame, self._projected = None, None  # this tick's depth, pose; their cells
-        self.has_anchor = False  # the instruction names a relation's anchor (it was given)
         self.last_output = None
         self.last_latency = 0.0
 
@@ -287,17 +278,13 @@ class Navigator:
         pose = torch.as_tensor(np.asarray(obs["pose"], np.float32)).reshape(1, 3)  # (1, 3)
         like = torch.as_tensor(np.asarray(goal_likelihood, np.float32)).reshape(depth.shape)
         votes_allowed = float(goal_visible) >= cfg.visible_threshold
-        self.room_matches.append(float(room_match))
-        if object_match is not None:
-            self.object_matches.append(float(object_match))
+        self.checks.observe(room_match, object_match)
         self.tick_goal_pixels = 0  # set by _vote; stays 0 on a tick that casts no votes
         self._tick_frame, self._projected = (depth, pose), None  # projected on demand
         visible = votes_allowed and self._vote(like)  # goal pixels in view now
         if anchor_likelihood is not None:
-            self.has_anchor = True
             anchor = torch.as_tensor(np.asarray(anchor_likelihood, np.float32)).reshape(1, -1)
-            rc = self._pixel_cells(anchor)  # (M, 2)
-            self.anchor_votes[rc[:, 0], rc[:, 1]] += 1
+            self.checks.add_anchor(self._pixel_cells(anchor))  # (M, 2) cells
         confirmed = self.goal_votes >= cfg.confirm_ticks  # (H, W)
         gate = torch.from_numpy(confirmed)[None]  # (1, H, W)
         if self.tight_left > 0:
@@ -348,7 +335,7 @@ class Navigator:
         )
         near = distance <= (cfg.stop_distance_at_end if at_end else cfg.stop_distance)
         if self.committed and near:
-            if self._wrong_room() or self._wrong_object() or self._no_anchor_near(nearest):
+            if self.checks.reject(lambda: self._goal_component(nearest)):
                 return self._abandon_goal(nearest)
             verified = float(goal_visible) >= cfg.stop_visible_threshold
             if visible and verified:
@@ -409,24 +396,10 @@ class Navigator:
         goal = self._goal_component(centre, rim=2)  # (H, W) this goal's cells and rim
         self.rejected |= goal
         self.goal_votes[goal] = 0
-        self.object_matches.clear()  # evidence about the rejected goal
+        self.checks.goal_rejected()
         self.committed = False
         self.rejections += 1
         logger.debug("navigator: goal at %s m rejected", np.round(np.asarray(centre), 2))
-
-    def _wrong_room(self) -> bool:
-        """The room check: the last ticks say the robot is not in the instructed room."""
-        threshold = self.config.room_reject_threshold
-        return threshold > 0.0 and float(np.mean(self.room_matches)) < threshold
-
-    def _wrong_object(self) -> bool:
-        """The object check: the last ticks' goal pixels do not show the instructed category."""
-        threshold = self.config.object_reject_threshold
-        return (
-            threshold > 0.0
-            and len(self.object_matches) > 0
-            and float(np.mean(self.object_matches)) < threshold
-        )
 
     def _goal_component(self, centre: np.ndarray, rim: int = 0) -> np.ndarray:
         """Cells (H, W) bool of the confirmed goal with a cell centred at ``centre`` (2,)
@@ -441,26 +414,6 @@ class Navigator:
         goal = np.zeros_like(confirmed)
         goal[max(row - 2, 0) : row + 3, max(col - 2, 0) : col + 3] = True
         return goal
-
-    def _anchor_distance(self, nearest: np.ndarray) -> float | None:
-        """Metres (between cell centres) from the goal at ``nearest`` to the nearest mapped
-        anchor cell: inf when none is mapped, None when the instruction names no anchor."""
-        if not self.has_anchor or nearest is None:
-            return None
-        anchor = self.anchor_votes >= self.config.confirm_ticks  # (H, W)
-        if not anchor.any():
-            return math.inf
-        goal = self._goal_component(nearest)  # (H, W)
-        to_anchor = ndimage.distance_transform_edt(~anchor)  # (H, W) cells to the anchor
-        return float(to_anchor[goal].min()) * self.field.config.cell_size
-
-    def _no_anchor_near(self, nearest: np.ndarray) -> bool:
-        """The relation check: no anchor mapped within ``relation_distance`` of the goal the
-        robot stands at."""
-        if self.config.relation_distance <= 0.0:
-            return False
-        distance = self._anchor_distance(nearest)
-        return distance is not None and distance > self.config.relation_distance + 1e-9
 
     def _abandon_goal(self, nearest: np.ndarray) -> NavPlan:
         """Reject the committed goal nearest ``nearest`` (2,), reset the counters that led
@@ -491,13 +444,7 @@ class Navigator:
             "max_votes": int(votes.max()) if votes.size else 0,
             "total_votes": int(votes.sum()),
             "distance": round(float(distance), 3),
-            "room_match": round(float(np.mean(self.room_matches)), 4),
-            "object_match": (
-                round(float(np.mean(self.object_matches)), 4) if self.object_matches else None
-            ),
-            # None: no anchor named, or none mapped (then anchor_cells is 0)
-            "anchor_distance": _finite_or_none(self._anchor_distance(nearest)),
-            "anchor_cells": int((self.anchor_votes >= self.config.confirm_ticks).sum()),
+            **self.checks.evidence(None if nearest is None else self._goal_component(nearest)),
             "tick": int(self.ticks),
         }
 
@@ -686,8 +633,3 @@ class Navigator:
         seen = (state[:, cells[:, 0], cells[:, 1]] > 0).any(dim=0)  # (D,)
         cells = cells[~seen]
         state[FREE_HITS, cells[:, 0], cells[:, 1]] += 1.0
-
-
-def _finite_or_none(value: float | None) -> float | None:
-    """``value`` rounded to millimetres; None for None or inf (JSON has no infinity)."""
-    return None if value is None or not math.isfinite(value) else round(float(value), 3)

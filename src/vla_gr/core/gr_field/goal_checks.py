@@ -1,0 +1,110 @@
+"""S2's checks of a confirmed goal before a STOP: the room, the object's category, a relation.
+
+The navigator (:mod:`vla_gr.core.gr_field.navigator`) feeds :class:`GoalChecks` on every tick
+and asks it, near a confirmed goal, whether the goal must be rejected:
+
+- room: the mean over the last ``room_ticks`` ticks of the probability that the robot stands
+  in a room of the instructed type is below ``room_reject_threshold``;
+- object: the mean over the last ``object_ticks`` ticks with evidence of the probability that
+  the goal pixels show the instructed category is below ``object_reject_threshold``;
+- relation: no anchor cell (anchor pixels landed in it on ``confirm_ticks`` ticks) lies within
+  ``relation_distance`` of the goal's cells.
+
+A threshold or distance of 0 switches its check off; the STOP evidence records all three.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Callable
+
+import numpy as np
+from scipy import ndimage
+
+__all__ = ["GoalChecks"]
+
+
+class GoalChecks:
+    """The evidence of the three checks for one episode; ``config`` is a ``NavigatorConfig``.
+
+    Args:
+        config: the navigator's settings (thresholds, tick windows, ``confirm_ticks``).
+        shape: (H, W) of the navigator's map; ``cell_size`` its cells' side in metres.
+    """
+
+    def __init__(self, config, shape: tuple[int, int], cell_size: float) -> None:
+        self.config, self.shape, self.cell_size = config, shape, float(cell_size)
+        self.reset()
+
+    def reset(self) -> None:
+        """A new episode: no evidence."""
+        self.room_matches: deque[float] = deque(maxlen=self.config.room_ticks)
+        self.object_matches: deque[float] = deque(maxlen=self.config.object_ticks)
+        self.anchor_votes = np.zeros(self.shape, np.int32)  # (H, W) ticks with anchor pixels
+        self.has_anchor = False  # the instruction names a relation's anchor (one was given)
+
+    def observe(self, room_match: float, object_match: float | None) -> None:
+        """One tick's room probability and object probability (None: no evidence)."""
+        self.room_matches.append(float(room_match))
+        if object_match is not None:
+            self.object_matches.append(float(object_match))
+
+    def add_anchor(self, cells: np.ndarray) -> None:
+        """One tick's anchor: the distinct cells (M, 2) its pixels landed in (M may be 0)."""
+        self.has_anchor = True
+        self.anchor_votes[cells[:, 0], cells[:, 1]] += 1
+
+    def goal_rejected(self) -> None:
+        """The committed goal was given up: its object evidence goes with it."""
+        self.object_matches.clear()
+
+    def wrong_room(self) -> bool:
+        threshold = self.config.room_reject_threshold
+        return threshold > 0.0 and float(np.mean(self.room_matches)) < threshold
+
+    def wrong_object(self) -> bool:
+        threshold = self.config.object_reject_threshold
+        return (
+            threshold > 0.0
+            and len(self.object_matches) > 0
+            and float(np.mean(self.object_matches)) < threshold
+        )
+
+    def anchor_distance(self, goal: np.ndarray) -> float | None:
+        """Metres (between cell centres) from the ``goal`` cells (H, W) bool to the nearest
+        anchor cell: inf when none is mapped, None when the instruction names no anchor."""
+        if not self.has_anchor:
+            return None
+        anchor = self.anchor_votes >= self.config.confirm_ticks  # (H, W)
+        if not anchor.any() or not goal.any():
+            return math.inf
+        to_anchor = ndimage.distance_transform_edt(~anchor)  # (H, W) cells to the anchor
+        return float(to_anchor[goal].min()) * self.cell_size
+
+    def no_anchor_near(self, goal: np.ndarray) -> bool:
+        distance = self.config.relation_distance
+        if distance <= 0.0:
+            return False
+        found = self.anchor_distance(goal)
+        return found is not None and found > distance + 1e-9
+
+    def reject(self, goal: Callable[[], np.ndarray]) -> bool:
+        """Whether the goal near the robot fails a check; ``goal()`` gives its cells (H, W)
+        (computed only when the relation check needs them)."""
+        return self.wrong_room() or self.wrong_object() or self.no_anchor_near(goal())
+
+    def evidence(self, goal: np.ndarray | None) -> dict:
+        """The checks' inputs at a STOP (None where a check had none)."""
+        distance = None if goal is None else self.anchor_distance(goal)
+        return {
+            "room_match": round(float(np.mean(self.room_matches)), 4),
+            "object_match": (
+                round(float(np.mean(self.object_matches)), 4) if self.object_matches else None
+            ),
+            # None: no anchor named, or none mapped (then anchor_cells is 0)
+            "anchor_distance": (
+                None if distance is None or not math.isfinite(distance) else round(distance, 3)
+            ),
+            "anchor_cells": int((self.anchor_votes >= self.config.confirm_ticks).sum()),
+        }
