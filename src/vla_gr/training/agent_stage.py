@@ -24,7 +24,15 @@ from vla_gr.errors import UserError
 
 log = logging.getLogger(__name__)
 
-__all__ = ["build_agent_from", "fit_part", "graft_part", "labelled_frames", "write_agent"]
+__all__ = [
+    "build_agent_from",
+    "finish_part",
+    "fit_part",
+    "graft_part",
+    "labelled_frames",
+    "part_setting",
+    "write_agent",
+]
 
 
 def build_agent_from(
@@ -226,3 +234,28 @@ def fit_part(
     module.load_state_dict(best_state)
     module.eval()
     return {f"best_val_{score}": best, "history": history}, val
+
+
+def part_setting(config_cls, part: str, key: str, settings: Sequence[str]):
+    """``model.<part>.<key>`` of config class ``config_cls`` after ``settings`` (each
+    ``<part>.key=value``): what the frames are labelled in, before the agent is built."""
+    from omegaconf import OmegaConf
+
+    merged = OmegaConf.merge(
+        OmegaConf.structured(config_cls),
+        OmegaConf.from_dotlist([s.removeprefix(f"{part}.") for s in settings]),
+    )
+    return list(merged[key])
+
+
+def finish_part(
+    policy, loaded, config, out, part: str, summary: dict, evaluate, eval_frames
+) -> dict:
+    """Report ``evaluate(eval_frames)`` (when given) in ``summary`` and write the agent with
+    ``<part>_training`` in its training state; returns ``summary``."""
+    if eval_frames is not None:
+        summary["eval"] = evaluate(eval_frames)
+        log.info("%s on the evaluation store: %s", part, json.dumps(summary["eval"]))
+    write_agent(policy.eval(), loaded, config, out, {f"{part}_training": summary})
+    log.info("wrote %s", out)
+    return summary

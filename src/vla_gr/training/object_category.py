@@ -16,7 +16,6 @@ other.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
 import sys
@@ -28,7 +27,13 @@ import torch
 import torch.nn.functional as F
 
 from vla_gr.errors import UserError
-from vla_gr.training.agent_stage import build_agent_from, fit_part, labelled_frames, write_agent
+from vla_gr.training.agent_stage import (
+    build_agent_from,
+    finish_part,
+    fit_part,
+    labelled_frames,
+    part_setting,
+)
 from vla_gr.training.object_labels import frame_categories
 
 log = logging.getLogger(__name__)
@@ -141,25 +146,17 @@ def train_object_category(
         val_fraction,
         eval_every,
     )
-    if eval_frames is not None:
-        summary["eval"] = segmentation_scores(segmenter, eval_frames)
-        log.info("object category on the evaluation store: %s", json.dumps(summary["eval"]))
-    write_agent(policy.eval(), loaded, config, out, {"object_category_training": summary})
-    log.info("wrote %s", out)
-    return summary
+    return finish_part(
+        policy, loaded, config, out, "object_category", summary,
+        lambda frames: segmentation_scores(segmenter, frames), eval_frames,
+    )  # fmt: skip
 
 
 def _categories(settings: Sequence[str]) -> list[str]:
-    """``object_category.categories`` after ``settings`` (the classes of the labels)."""
-    from omegaconf import OmegaConf
-
+    """``object_category.categories`` after ``settings`` (the classes frames are labelled in)."""
     from vla_gr.core.grounding import ObjectCategoryConfig
 
-    merged = OmegaConf.merge(
-        OmegaConf.structured(ObjectCategoryConfig),
-        OmegaConf.from_dotlist([s.removeprefix("object_category.") for s in settings]),
-    )
-    return list(merged.categories)
+    return part_setting(ObjectCategoryConfig, "object_category", "categories", settings)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -18,7 +18,6 @@ the agent with ``model.room_type.enabled=true`` and the room check on
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
 import sys
@@ -32,10 +31,11 @@ import torch.nn.functional as F
 from vla_gr.errors import UserError
 from vla_gr.training.agent_stage import (
     build_agent_from,
+    finish_part,
     fit_part,
     graft_part,
     labelled_frames,
-    write_agent,
+    part_setting,
 )
 
 log = logging.getLogger(__name__)
@@ -157,25 +157,17 @@ def train_room_type(
         val_fraction,
         eval_every,
     )
-    if eval_frames is not None:
-        summary["eval"] = room_accuracy(classifier, eval_frames)
-        log.info("room type on the evaluation store: %s", json.dumps(summary["eval"]))
-    write_agent(policy.eval(), loaded, config, out, {"room_type_training": summary})
-    log.info("wrote %s", out)
-    return summary
+    return finish_part(
+        policy, loaded, config, out, "room_type", summary,
+        lambda frames: room_accuracy(classifier, frames), eval_frames,
+    )  # fmt: skip
 
 
 def _room_types(settings: Sequence[str]) -> list[str]:
     """``room_type.room_types`` after ``settings`` (the classes frames are labelled in)."""
-    from omegaconf import OmegaConf
-
     from vla_gr.core.grounding import RoomTypeConfig
 
-    merged = OmegaConf.merge(
-        OmegaConf.structured(RoomTypeConfig),
-        OmegaConf.from_dotlist([s.removeprefix("room_type.") for s in settings]),
-    )
-    return list(merged.room_types)
+    return part_setting(RoomTypeConfig, "room_type", "room_types", settings)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
