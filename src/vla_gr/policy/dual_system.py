@@ -123,12 +123,14 @@ class GroundedDualSystem:
 
     def episode_summary(self) -> dict:
         """What S2 concluded this episode: the highest goal confidence, the last mode, the
-        goals it rejected (verification, dead ends, traps), the times it was trapped and the
-        evidence behind its STOP request ({} without one)."""
+        goals it rejected (how many, and each one's reason, tick and position in the
+        episode-start frame), the times it was trapped and the evidence behind its STOP
+        request ({} without one)."""
         return {
             "goal_confidence": round(float(self.max_goal_confidence), 4),
             "last_mode": None if self.plan is None else self.plan.mode,
             "rejected_goals": int(self.navigator.rejections),
+            "rejections": [dict(r) for r in self.navigator.rejection_log],
             "traps": int(self.navigator.traps),
             "stop_evidence": dict(self.navigator.stop_evidence),
         }

@@ -293,6 +293,7 @@ def test_a_goal_that_fails_to_verify_is_rejected_and_a_verified_one_stops():
     plan = tick(nav, near, like, visible=0.2)  # verify_steps spent: rejected, explore on
     assert not plan.stop and plan.mode == "explore" and nav.rejections == 1
     assert nav.goal_votes.max() == 0 and nav.rejected.any()
+    assert [r["reason"] for r in nav.rejection_log] == ["verify"]
     for _ in range(3):  # the rejected cells collect no votes again, even at p = 1
         plan = tick(nav, near, like, visible=1.0)
     assert not nav.committed and not plan.stop and nav.goal_votes.max() == 0
@@ -342,6 +343,11 @@ def test_a_goal_the_robot_stands_at_the_dead_end_of_is_rejected():
     assert plan.mode == "explore" and plan.command == (0.0, nav.config.turn_rate)
     assert nav.rejections == 1 and nav.goal_votes.max() == 0
     assert nav.rejected[40:42, 36:38].all() and nav.rejected[38, 36]  # with its rim
+    # the log holds the reason and the goal cell's centre in the episode-start frame
+    (entry,) = nav.rejection_log
+    h, origin = nav.field.config.cell_size, nav.field.grid.origin_x
+    assert entry["reason"] == "dead_end"
+    assert entry["xy"] == pytest.approx([origin + 36.5 * h, origin + 40.5 * h], abs=1e-3)
     assert not nav.rejected[20, 20]  # elsewhere the map still takes votes
     # a path that still leads somewhere, or the rule off: never rejected
     for overrides, last in (({"dead_end_steps": 3}, 1.5), ({"dead_end_steps": 0}, 0.1)):
@@ -372,13 +378,14 @@ def test_a_robot_trapped_in_one_spot_closes_the_way_ahead_or_rejects_its_goal():
     for _ in range(2):
         nav._start_recovery(np.zeros(3), mark=False, nearest=nearest)
     assert nav.traps == 1 and nav.rejections == 1 and nav.goal_votes.max() == 0
+    assert nav.rejection_log[0]["reason"] == "trap"
 
 
 def test_rejecting_at_a_cell_outside_any_confirmed_goal_rejects_only_its_neighbourhood():
     nav, _ = _dead_end_setup()
     h = nav.field.config.cell_size
     nav.goal_votes[10, 10] = 1  # a vote elsewhere, below confirm_ticks
-    nav._reject_goal(np.array([(20 + 0.5) * h, (20 + 0.5) * h]))  # cell (20, 20): no goal
+    nav._reject_goal(np.array([(20 + 0.5) * h, (20 + 0.5) * h]), "trap")  # (20, 20): no goal
     assert nav.rejected.sum() == 25 and nav.rejected[18:23, 18:23].all()
     assert nav.goal_votes[40:42, 36:38].min() == 5 and nav.goal_votes[10, 10] == 1
 
@@ -401,6 +408,7 @@ def test_the_room_check_rejects_a_goal_in_another_room_and_stops_in_the_right_on
     nav, plans = run([0.1, 0.1, 0.1, 0.1])
     assert not any(p.stop for p in plans)
     assert nav.rejections == 1 and plans[1].mode == "explore" and nav.rejected.any()
+    assert nav.rejection_log[0]["reason"] == "room"
     # the mean of the last room_ticks decides: one doubtful frame after a good one still stops
     nav, plans = run([0.9, 0.2])
     assert plans[1].stop and nav.rejections == 0
@@ -428,6 +436,7 @@ def test_the_object_check_rejects_a_goal_of_another_category_and_ignores_ticks_w
     # the goal pixels confidently show another category: rejected when confirmed and near
     nav, plans = run([0.1, 0.1])
     assert not any(p.stop for p in plans) and nav.rejections == 1 and nav.rejected.any()
+    assert nav.rejection_log[0]["reason"] == "object"
     assert len(nav.checks.object_matches) == 0  # the rejected goal's evidence goes with it
     # the mean of the last object_ticks values with evidence decides
     nav, plans = run([0.9, 0.2])
@@ -470,6 +479,7 @@ def test_the_relation_check_rejects_a_goal_without_its_anchor_mapped_near():
     assert plans[1].stop and nav.stop_evidence["anchor_distance"] <= 0.2
     nav, plans = run(apart)  # mapped, but farther than relation_distance
     assert not plans[1].stop and nav.rejections == 1
+    assert nav.rejection_log[0]["reason"] == "relation"
     nav, plans = run(apart, distance=1.0)  # within a wider distance
     assert plans[1].stop and 0.2 < nav.stop_evidence["anchor_distance"] <= 1.0
     nav, plans = run(np.zeros_like(like))  # never seen

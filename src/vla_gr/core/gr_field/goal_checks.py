@@ -89,10 +89,15 @@ class GoalChecks:
         found = self.anchor_distance(goal)
         return found is not None and found > distance + 1e-9
 
-    def reject(self, goal: Callable[[], np.ndarray]) -> bool:
-        """Whether the goal near the robot fails a check; ``goal()`` gives its cells (H, W)
-        (computed only when the relation check needs them)."""
-        return self.wrong_room() or self.wrong_object() or self.no_anchor_near(goal())
+    def failed(self, goal: Callable[[], np.ndarray]) -> str | None:
+        """The first check the goal near the robot fails ("room", "object", "relation"), or
+        None; ``goal()`` gives its cells (H, W) (computed only when the relation check needs
+        them)."""
+        if self.wrong_room():
+            return "room"
+        if self.wrong_object():
+            return "object"
+        return "relation" if self.no_anchor_near(goal()) else None
 
     def evidence(self, goal: np.ndarray | None) -> dict:
         """The checks' inputs at a STOP (None where a check had none)."""

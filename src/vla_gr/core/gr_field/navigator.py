@@ -210,6 +210,7 @@ class Navigator:
         self.goal_votes = np.zeros(shape, np.int32)  # (H, W) ticks with goal pixels per cell
         self.rejected = np.zeros(shape, bool)  # (H, W) cells of rejected goals (cast no votes)
         self.rejections = 0
+        self.rejection_log: list[dict] = []  # per rejected goal: reason, tick, xy (start frame)
         self.mode = "look_around"
         self.ticks = 0
         self.turned = 0.0
@@ -335,15 +336,16 @@ class Navigator:
         )
         near = distance <= (cfg.stop_distance_at_end if at_end else cfg.stop_distance)
         if self.committed and near:
-            if self.checks.reject(lambda: self._goal_component(nearest)):
-                return self._abandon_goal(nearest)
+            failed = self.checks.failed(lambda: self._goal_component(nearest))
+            if failed is not None:
+                return self._abandon_goal(nearest, failed)
             verified = float(goal_visible) >= cfg.stop_visible_threshold
             if visible and verified:
                 return NavPlan(np.zeros((0, 2)), "stop", 0.0, True)
             if self.verify_count >= self.steps_to_ticks(cfg.verify_steps):
                 if cfg.stop_visible_threshold == 0.0:
                     return NavPlan(np.zeros((0, 2)), "stop", 0.0, True)
-                return self._abandon_goal(nearest)
+                return self._abandon_goal(nearest, "verify")
             self.verify_count += 1
             bearing = math.atan2(nearest[1] - robot_xy[1], nearest[0] - robot_xy[0])
             turn = math.copysign(cfg.turn_rate, wrap_angle(bearing - yaw))
@@ -351,7 +353,7 @@ class Navigator:
         self.verify_count = 0
         self.dead_end_count = self.dead_end_count + 1 if self.committed and at_end else 0
         if cfg.dead_end_steps and self.dead_end_count >= self.steps_to_ticks(cfg.dead_end_steps):
-            return self._abandon_goal(nearest)
+            return self._abandon_goal(nearest, "dead_end")
 
         mode = "approach" if self.committed else "explore"
         self.positions.append(pose[:2].copy())  # progress is judged while driving only
@@ -390,10 +392,16 @@ class Navigator:
 
     # ------------------------------------------------------------------ pieces
 
-    def _reject_goal(self, centre: np.ndarray) -> None:
+    def _reject_goal(self, centre: np.ndarray, reason: str) -> None:
         """Give up the confirmed goal with a cell centred at ``centre`` (2,) (metres from the
-        grid corner): its connected cells and their two-cell rim lose their votes for good."""
+        grid corner): its connected cells and their two-cell rim lose their votes for good.
+        ``reason`` (a check's name, "verify", "dead_end" or "trap") goes to the log."""
         goal = self._goal_component(centre, rim=2)  # (H, W) this goal's cells and rim
+        grid = self.field.grid
+        xy = np.asarray(centre, np.float64) + (grid.origin_x, grid.origin_y)  # (2,) start frame
+        self.rejection_log.append(
+            {"reason": reason, "tick": int(self.ticks), "xy": [round(float(v), 3) for v in xy]}
+        )
         self.rejected |= goal
         self.goal_votes[goal] = 0
         self.checks.goal_rejected()
@@ -415,10 +423,10 @@ class Navigator:
         goal[max(row - 2, 0) : row + 3, max(col - 2, 0) : col + 3] = True
         return goal
 
-    def _abandon_goal(self, nearest: np.ndarray) -> NavPlan:
-        """Reject the committed goal nearest ``nearest`` (2,), reset the counters that led
-        here (verification, dead end) and turn in place to explore on."""
-        self._reject_goal(nearest)
+    def _abandon_goal(self, nearest: np.ndarray, reason: str) -> NavPlan:
+        """Reject the committed goal nearest ``nearest`` (2,) for ``reason``, reset the
+        counters that led here (verification, dead end) and turn in place to explore on."""
+        self._reject_goal(nearest, reason)
         self.verify_count = 0
         self.dead_end_count = 0
         return self._command_plan("explore", (0.0, self.config.turn_rate))
@@ -573,7 +581,7 @@ class Navigator:
         self.traps += 1
         self.recovery_spots.clear()
         if self.committed and nearest is not None:
-            self._reject_goal(nearest)
+            self._reject_goal(nearest, "trap")
             return
         cfg = self.config
         heading = np.array([math.cos(pose[2]), math.sin(pose[2])])
