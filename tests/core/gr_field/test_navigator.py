@@ -155,7 +155,7 @@ def test_blocked_fires_after_the_window_marks_an_obstacle_and_backs_up():
     r, c = nav.field.grid.world_to_cell(np.array([0.3, 0.0]))
     near = nav.field.map_state[0, 0, r - 1 : r + 2, c - 1 : c + 2]  # (3, 3) around the spot
     assert near.max() >= nav.config.virtual_obstacle_hits  # a virtual obstacle in front
-    nav.clear_virtual_obstacles()
+    nav.map_edits.clear_virtual_obstacles()
     assert nav.field.map_state[0, 0, r - 1 : r + 2, c - 1 : c + 2].max() < 10
 
 
@@ -164,7 +164,7 @@ def test_no_progress_fires_after_the_window_without_a_virtual_obstacle():
     pose = (0.0, 0.0, 0.0)
     modes = [tick(nav, pose).mode for _ in range(12)]
     assert modes[:10] == ["explore"] * 10  # window not full yet
-    assert modes[10] == "recover" and nav.recoveries == 1 and not nav.virtual
+    assert modes[10] == "recover" and nav.recoveries == 1 and not nav.map_edits.virtual
     moving = make_nav(look_around_angle=0.0, stuck_steps=10, blocked_steps=1000)
     modes = [tick(moving, (0.05 * k, 0.0, 0.0)).mode for k in range(12)]
     assert "recover" not in modes  # 0.5 m in the window is progress
@@ -239,7 +239,7 @@ def test_noise_is_forgotten_but_real_obstacles_stay():
     state[0, 5, 5], state[1, 5, 5] = 1.0, 10.0  # one stray point in a cell seen free 10 times
     state[:, 6, 6] = 0.0
     state[0, 6, 6], state[1, 6, 6] = 5.0, 10.0  # a real obstacle seen repeatedly
-    nav.forget_noise()
+    nav.map_edits.forget_noise()
     assert state[0, 5, 5] == 0.0 and state[0, 6, 6] == 5.0
 
 
@@ -250,7 +250,7 @@ def test_visited_cells_count_as_explored_without_hiding_obstacles():
     r, c = nav.field.grid.world_to_cell(np.array([-0.6, 0.0]))  # behind: never seen
     assert state[:, r, c].sum() == 0
     state[0, r + 1, c] = 3.0  # an obstacle seen beside it
-    nav.mark_visited(np.array([0.0, 0.0]), 0.8)
+    nav.map_edits.mark_visited(np.array([0.0, 0.0]), 0.8)
     assert state[1, r, c] == 1.0 and state[1, r + 1, c] == 0.0
 
 
@@ -362,14 +362,14 @@ def test_a_robot_trapped_in_one_spot_closes_the_way_ahead_or_rejects_its_goal():
     pose = np.array([0.0, 0.0, 0.0])
     tick(nav, pose)
     occ = nav.field.map_state[0, OCC_HITS]  # (H, W)
-    ahead = tuple(nav._disk_cells(np.array([0.55, 0.0]), 0.01)[0].tolist())  # (row, col)
+    ahead = tuple(nav.map_edits.disk_cells(np.array([0.55, 0.0]), 0.01)[0].tolist())  # (row, col)
     nav._start_recovery(np.array([1.5, 0.0, 0.0]), mark=False)  # elsewhere: not this spot
     for k in range(2):
         nav._start_recovery(pose + [0.1 * k, 0.0, 0.0], mark=True)
     assert nav.traps == 0 and occ[ahead] == 0
     nav._start_recovery(pose, mark=True)  # the third within 0.5 m
     assert nav.traps == 1 and occ[ahead] >= nav.config.virtual_obstacle_hits
-    nav.clear_virtual_obstacles()  # no path: virtual obstacles go, the lasting one stays
+    nav.map_edits.clear_virtual_obstacles()  # no path: virtual obstacles go, the lasting one stays
     assert occ[ahead] >= nav.config.virtual_obstacle_hits
     # committed to a goal: the goal is rejected instead
     nav, decide = _dead_end_setup(trap_recoveries=2)
@@ -379,6 +379,14 @@ def test_a_robot_trapped_in_one_spot_closes_the_way_ahead_or_rejects_its_goal():
         nav._start_recovery(np.zeros(3), mark=False, nearest=nearest)
     assert nav.traps == 1 and nav.rejections == 1 and nav.goal_votes.max() == 0
     assert nav.rejection_log[0]["reason"] == "trap"
+    # without trap_rejects_goal the goal keeps its votes and the way ahead is closed instead
+    nav, _ = _dead_end_setup(trap_recoveries=2, trap_rejects_goal=False)
+    occ = nav.field.map_state[0, OCC_HITS]  # (H, W)
+    ahead = tuple(nav.map_edits.disk_cells(np.array([0.55, 0.0]), 0.01)[0].tolist())
+    for _ in range(2):
+        nav._start_recovery(np.zeros(3), mark=False, nearest=nearest)
+    assert nav.traps == 1 and nav.rejections == 0 and nav.goal_votes[40:42, 36:38].min() == 5
+    assert occ[ahead] >= nav.config.virtual_obstacle_hits and not nav.map_edits.virtual
 
 
 def test_rejecting_at_a_cell_outside_any_confirmed_goal_rejects_only_its_neighbourhood():

@@ -41,12 +41,13 @@ for ``no_path_steps``: the virtual obstacles are forgotten (they may close a doo
 are none, the field plans for a thinner robot (``tight_radius``, at ``tight_speed``) for
 ``tight_steps``; after that, back up and turn. Trapped (``trap_recoveries`` recoveries within
 ``trap_radius`` of one another: planning thinner and forgetting virtual obstacles keep sending
-the robot into the same gap): a committed goal is rejected; while exploring, the way ahead is
-closed for good by an obstacle that is never forgotten.
+the robot into the same gap): the way ahead is closed for good by an obstacle that is never
+forgotten, or, with ``trap_rejects_goal``, a committed goal is rejected instead.
 
-Map hygiene, every tick: unseen cells within ``visited_clear_radius`` of the robot count as
-seen (frontiers in the camera's blind spots stop pulling the robot back and forth), and
-obstacle cells with a few hits that free space outvotes are forgotten (``noise_*``).
+Map hygiene, every tick (:mod:`vla_gr.core.gr_field.map_edits`): unseen cells within
+``visited_clear_radius`` of the robot count as seen (frontiers in the camera's blind spots stop
+pulling the robot back and forth), and obstacle cells with a few hits that free space outvotes
+are forgotten (``noise_*``).
 Durations are in control steps and become ticks through ``plan_every``.
 """
 
@@ -65,7 +66,8 @@ from scipy import ndimage
 
 from vla_gr.core.gr_field.config import GRFieldConfig
 from vla_gr.core.gr_field.goal_checks import GoalChecks
-from vla_gr.core.gr_field.mapping import FREE_HITS, OCC_HITS, points_to_cells
+from vla_gr.core.gr_field.map_edits import MapEdits
+from vla_gr.core.gr_field.mapping import points_to_cells
 from vla_gr.core.gr_field.planning import GRField
 from vla_gr.geometry.camera import project_depth
 from vla_gr.geometry.pose2d import lookahead_target, wrap_angle
@@ -125,8 +127,10 @@ class NavigatorConfig:
     virtual_obstacle_hits: float = 100.0  # evidence count (outvotes later free evidence)
     no_path_steps: int = 8  # without a path before a recovery
     # recoveries within trap_radius of one another before the robot gives up what it heads
-    # for: a committed goal is rejected, else the way ahead is closed for good (0 = off)
+    # for: a committed goal is rejected (with trap_rejects_goal), else the way ahead is closed
+    # for good (0 = off)
     trap_recoveries: int = 4
+    trap_rejects_goal: bool = True
     trap_radius: float = 0.5  # m
     trap_obstacle_radius: float = 0.25  # m, the lasting obstacle ahead of a trapped robot
     # no path even without virtual obstacles: plan for a thinner robot for a while (passages
@@ -221,7 +225,7 @@ class Navigator:
         self.drives: deque[tuple[np.ndarray, bool]] = deque(
             maxlen=self.steps_to_ticks(self.config.blocked_steps) + 1
         )  # ((2,), the plan drove ahead) per driving tick
-        self.virtual: list[torch.Tensor] = []  # (D, 2) cells of each virtual obstacle
+        self.map_edits = MapEdits(self.field, self.config)  # virtual obstacles, noise, visited
         self.field.config.robot_radius = self.field_config.robot_radius
         self._radius = self.field_config.robot_radius  # the planning radius outside tight mode
         self.tight_left = 0
@@ -292,8 +296,8 @@ class Navigator:
             self.tight_left -= 1
             if self.tight_left == 0:
                 self.field.config.robot_radius = self._radius
-        self.mark_visited(pose[0, :2].numpy(), cfg.visited_clear_radius)
-        self.forget_noise()
+        self.map_edits.mark_visited(pose[0, :2].numpy(), cfg.visited_clear_radius)
+        self.map_edits.forget_noise()
         out = self.field.update({"depth": depth, "pose": pose}, like, goal_gate=gate)
         self.last_output = out
         maps = self.field.last_maps
@@ -366,8 +370,8 @@ class Navigator:
             self.no_path_count += 1
             if self.no_path_count >= self.steps_to_ticks(cfg.no_path_steps):
                 self.no_path_count = 0
-                if self.virtual:
-                    self.clear_virtual_obstacles()
+                if self.map_edits.virtual:
+                    self.map_edits.clear_virtual_obstacles()
                 elif self.tight_left == 0 and cfg.tight_radius < self._radius:
                     self._start_tight()
                 else:
@@ -563,7 +567,7 @@ class Navigator:
         if mark:
             heading = np.array([math.cos(pose[2]), math.sin(pose[2])])
             centre = pose[:2] + cfg.virtual_obstacle_distance * heading  # (2,) map frame
-            self.mark_obstacle(centre, cfg.virtual_obstacle_radius)
+            self.map_edits.mark_obstacle(centre, cfg.virtual_obstacle_radius)
         self.recover_left = self.steps_to_ticks(cfg.recover_back_steps) + self.steps_to_ticks(
             cfg.recover_turn_steps
         )
@@ -577,67 +581,16 @@ class Navigator:
 
     def _give_up(self, pose: np.ndarray, nearest) -> None:
         """Trapped: reject the committed goal (``nearest`` (2,), its cell centre from the grid
-        corner), or while exploring close the way ahead for good."""
+        corner) with ``trap_rejects_goal``, else close the way ahead for good."""
         self.traps += 1
         self.recovery_spots.clear()
-        if self.committed and nearest is not None:
+        if self.committed and nearest is not None and self.config.trap_rejects_goal:
             self._reject_goal(nearest, "trap")
             return
         cfg = self.config
         heading = np.array([math.cos(pose[2]), math.sin(pose[2])])
         ahead = cfg.virtual_obstacle_distance + cfg.trap_obstacle_radius
-        self.mark_obstacle(pose[:2] + ahead * heading, cfg.trap_obstacle_radius, lasting=True)
-        logger.debug("navigator: trapped at %s, the way ahead is closed", pose)
-
-    def _disk_cells(self, xy: np.ndarray, radius: float) -> torch.Tensor:
-        """Cells (D, 2) as (row, col) within ``radius`` of map-frame point ``xy`` (2,)."""
-        h = self.field.grid.cell_size
-        k = int(math.ceil(radius / h))
-        offs = np.arange(-k, k + 1) * h
-        dx, dy = np.meshgrid(offs, offs)
-        disk = dx**2 + dy**2 <= radius**2
-        pts = torch.tensor(np.stack([dx[disk], dy[disk]], -1) + xy, dtype=torch.float32)
-        cells, inside = points_to_cells(pts, self.field.grid)  # (D, 2), (D,)
-        return cells[inside]
-
-    def mark_obstacle(self, xy: np.ndarray, radius: float, lasting: bool = False) -> None:
-        """Add obstacle evidence to the cells within ``radius`` of map-frame point ``xy`` (2,);
-        a virtual obstacle is forgotten when no path is left, a ``lasting`` one never."""
-        cells = self._disk_cells(xy, radius)  # (D, 2)
-        if self.field.map_state.shape[0] == 0 or len(cells) == 0:
-            return
-        self.field.map_state[0, OCC_HITS, cells[:, 0], cells[:, 1]] += (
-            self.config.virtual_obstacle_hits
+        self.map_edits.mark_obstacle(
+            pose[:2] + ahead * heading, cfg.trap_obstacle_radius, lasting=True
         )
-        if not lasting:
-            self.virtual.append(cells)
-
-    def clear_virtual_obstacles(self) -> None:
-        """Take back the evidence of every virtual obstacle (seen obstacles stay)."""
-        occ = self.field.map_state[0, OCC_HITS]  # (H, W)
-        for cells in self.virtual:
-            occ[cells[:, 0], cells[:, 1]] -= self.config.virtual_obstacle_hits
-        occ.clamp_(min=0.0)
-        self.virtual.clear()
-
-    def forget_noise(self) -> None:
-        """Drop obstacle evidence that free-space evidence outvotes (see ``noise_*``)."""
-        if self.field.map_state.shape[0] == 0:
-            return
-        cfg, state = self.config, self.field.map_state[0]  # (4, H, W)
-        occ, free = state[OCC_HITS], state[FREE_HITS]  # (H, W) each
-        noise = (occ > 0) & (occ <= cfg.noise_max_hits) & (free >= cfg.noise_free_ratio * occ)
-        occ[noise] = 0.0
-
-    def mark_visited(self, xy: np.ndarray, radius: float) -> None:
-        """Count the unseen cells within ``radius`` of ``xy`` (2,) as seen free (one hit).
-
-        Obstacle evidence still wins over it, so a cell seen occupied stays occupied.
-        """
-        if radius <= 0 or self.field.map_state.shape[0] == 0:
-            return
-        cells = self._disk_cells(xy, radius)  # (D, 2)
-        state = self.field.map_state[0]  # (4, H, W)
-        seen = (state[:, cells[:, 0], cells[:, 1]] > 0).any(dim=0)  # (D,)
-        cells = cells[~seen]
-        state[FREE_HITS, cells[:, 0], cells[:, 1]] += 1.0
+        logger.debug("navigator: trapped at %s, the way ahead is closed", pose)
