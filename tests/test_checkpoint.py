@@ -45,6 +45,16 @@ def test_save_read_round_trip_and_links(tmp_path):
     assert left == ["step_00000001", "step_00000003"]  # step 1 survives: `best` points at it
 
 
+def test_every_checkpoint_file_gets_the_permissions_of_a_plain_new_file(tmp_path):
+    old = os.umask(0o022)
+    try:
+        folder = _save(tmp_path, 1)
+    finally:
+        os.umask(old)
+    modes = {p.name: p.stat().st_mode & 0o777 for p in folder.iterdir()}
+    assert set(modes.values()) == {0o644}, modes  # safetensors alone would write 0600
+
+
 def test_optimizer_state_round_trip_without_pickle():
     model = tiny_policy(0)
     opt = build_optimizer(model, lr=1e-3, weight_decay=0.1)

@@ -170,8 +170,16 @@ def _write_bytes(path: Path, data: bytes) -> None:
         os.fsync(f.fileno())
 
 
+def _default_file_mode() -> int:
+    """The permissions ``open`` gives a new file under the process umask."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
 def _save_tensors(path: Path, tensors: Mapping[str, torch.Tensor]) -> None:
     save_file({k: v.detach().cpu().contiguous() for k, v in tensors.items()}, str(path))
+    os.chmod(path, _default_file_mode())  # safetensors writes 0600; match the other files
     with open(path, "rb") as f:
         os.fsync(f.fileno())
 
