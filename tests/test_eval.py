@@ -191,6 +191,42 @@ def test_each_failure_cause_comes_from_an_agent_built_to_cause_it(tmp_path, monk
     assert rows["still/facing-goal"]["wrong_stop"] is None
 
 
+class RejectsThreeGoals(Constant):
+    """Stands still and reports three rejected goals (in the episode-start frame): on the goal
+    instance, on a same-category distractor, and 3 m behind the start (nothing there)."""
+
+    def __init__(self, env) -> None:
+        super().__init__([0.0, 0.0, -1.0])
+        self.env = env
+
+    def episode_summary(self) -> dict:
+        from vla_gr.envs.instructions import distractors
+        from vla_gr.geometry.pose2d import map_to_robot
+
+        u = self.env.unwrapped
+        other = u.house.object(distractors(u.house, u.goal.instance_id)[0])
+        world = np.array([[u.goal.x, u.goal.y], [other.x, other.y]])  # (2, 2) object centres
+        start = map_to_robot(world, u.start_pose_world)  # (2, 2) episode-start frame
+        xy = [*start.tolist(), [-3.0, 0.0]]
+        reasons = ["trap", "room", "verify"]
+        return {"rejections": [{"reason": r, "xy": p} for r, p in zip(reasons, xy)]}
+
+
+def test_rejected_goals_are_named_by_the_object_they_lay_on(tmp_path, monkeypatch):
+    file = tmp_path / "scripted.jsonl"
+    _scripted_episodes(file)
+    monkeypatch.setitem(AGENTS, "rejects", lambda cfg, env: RejectsThreeGoals(env))
+    out = tmp_path / "rejects"
+    metrics = evaluate(cfg_for(out, "agent=rejects", f"episodes={file}", *SHORT))
+    row = rows_of(out)[1]  # facing-goal: 3 m behind it lies open floor
+    assert [g["kind"] for g in row["rejected_goals"]] == ["goal", "same_category", "other_object"]
+    assert row["rejected_goals"][0]["near"]["instance_id"] == row["spec"]["goal_instance_id"]
+    assert metrics["rejected_goals"]["trap"] == {"goal": 3, "same_category": 0, "other_object": 0}
+    assert metrics["rejected_goals"]["room"]["same_category"] == 3
+    assert metrics["rejected_goals"]["episodes_failed_after_rejecting_the_goal"] == 3
+    assert "Failed episodes that had rejected the goal itself: 3" in (out / "report.md").read_text()
+
+
 # ------------------------------------------------------------------ checkpoints, bad input
 
 

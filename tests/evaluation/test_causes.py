@@ -7,16 +7,19 @@ import pytest
 
 from vla_gr.evaluation.causes import (
     CAUSES,
+    REJECTED_GOAL_KINDS,
     WRONG_STOP_KINDS,
     CauseThresholds,
     failure_cause,
     is_stuck,
+    rejected_goal_kind,
     wrong_stop_kind,
 )
 from vla_gr.evaluation.summary import (
     cause_counts,
     latency,
     overall,
+    rejected_goal_counts,
     without_timing,
     wrong_stop_counts,
 )
@@ -89,3 +92,32 @@ def test_a_wrong_stop_is_named_by_what_it_stopped_next_to():
     counts = wrong_stop_counts(rows)  # rows of older runs have no "wrong_stop"
     assert list(counts) == list(WRONG_STOP_KINDS) and counts["same_colour"] == 2
     assert sum(counts.values()) == 2
+
+
+def test_a_rejected_goal_is_named_by_the_object_it_lay_on():
+    goal = {"instance_id": 7, "category": "chair"}
+    on = {"instance_id": 7, "category": "chair", "distance": 0.2}
+    assert rejected_goal_kind(goal, on, 0.5) == "goal"
+    assert rejected_goal_kind(goal, {**on, "distance": 0.6}, 0.5) == "other_object"  # nothing
+    assert rejected_goal_kind(goal, {**on, "instance_id": 8}, 0.5) == "same_category"
+    assert rejected_goal_kind(goal, {**on, "instance_id": 8, "category": "bed"}, 0.5) == (
+        "other_object"
+    )
+
+
+def test_rejected_goals_are_counted_by_reason_and_the_failures_they_preceded():
+    def rejected(*pairs):
+        return [{"reason": why, "kind": kind} for why, kind in pairs]
+
+    rows = [
+        {"cause": "stuck", "rejected_goals": rejected(("trap", "goal"), ("room", "goal"))},
+        {"cause": None, "rejected_goals": rejected(("room", "same_category"))},
+        {"cause": "timeout_goal_seen", "rejected_goals": rejected(("verify", "other_object"))},
+        {"cause": "stuck"},  # a row of an older run
+    ]
+    counts = rejected_goal_counts(rows)
+    assert list(counts) == ["room", "trap", "verify", "episodes_failed_after_rejecting_the_goal"]
+    assert counts["room"] == {"goal": 1, "same_category": 1, "other_object": 0}
+    assert list(counts["trap"]) == list(REJECTED_GOAL_KINDS) and counts["trap"]["goal"] == 1
+    assert counts["episodes_failed_after_rejecting_the_goal"] == 1  # the success does not count
+    assert rejected_goal_counts([{"cause": None}]) == {}

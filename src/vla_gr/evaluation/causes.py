@@ -14,7 +14,9 @@ One cause per failed episode, checked in this order:
 A wrong STOP is further told apart by the object nearest to where the robot stopped
 (:func:`wrong_stop_kind`): another instance of the goal's category, an object of another
 category in the goal's colour (the grounding followed the colour, not the category), or any
-other object.
+other object. A goal the planner *rejected* on the way (a failed goal check, a dead end, a
+trap) is told apart the same way (:func:`rejected_goal_kind`): the goal instance itself (a
+mistaken rejection), a same-category distractor, or anything else.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ CAUSES: tuple[str, ...] = (
 
 
 WRONG_STOP_KINDS: tuple[str, ...] = ("same_category", "same_colour", "other_object")
+REJECTED_GOAL_KINDS: tuple[str, ...] = ("goal", "same_category", "other_object")
 
 
 @dataclass(frozen=True)
@@ -91,4 +94,21 @@ def wrong_stop_kind(goal: dict, nearest: dict) -> str:
         return "same_category"
     if nearest["color"] == goal["color"]:
         return "same_colour"
+    return "other_object"
+
+
+def rejected_goal_kind(goal: dict, nearest: dict, near_distance: float) -> str:
+    """What a goal the planner rejected was: ``goal`` (``nearest`` is the goal instance, at
+    most ``near_distance`` m away: a right goal given up), ``same_category`` (a distractor) or
+    ``other_object`` (another category, or nothing within ``near_distance``).
+
+    ``goal`` and ``nearest`` hold ``instance_id`` and ``category``; ``nearest`` also holds
+    ``distance`` (m) from the rejected goal cell to its footprint.
+    """
+    if nearest["distance"] > near_distance:
+        return "other_object"
+    if nearest["instance_id"] == goal["instance_id"]:
+        return "goal"
+    if nearest["category"] == goal["category"]:
+        return "same_category"
     return "other_object"

@@ -149,6 +149,15 @@ def write_report(out_dir: Path, metrics: dict, rows: Sequence[dict], pictures: d
         lines += ["", "Wrong STOPs by the object nearest to where the robot stopped:", ""]
         lines += ["| next to | episodes |", "|---|---|"]
         lines += [f"| {kind} | {n} |" for kind, n in wrong.items()]
+    rejected = dict(metrics.get("rejected_goals") or {})
+    failed_after = rejected.pop("episodes_failed_after_rejecting_the_goal", 0)
+    if rejected:
+        kinds = list(next(iter(rejected.values())))
+        lines += ["", "Goals the planner rejected, by reason and by what they were:", ""]
+        lines += ["| reason | " + " | ".join(kinds) + " |", "|---" * (len(kinds) + 1) + "|"]
+        lines += [f"| {why} | " + " | ".join(str(n[k]) for k in kinds) + " |"
+                  for why, n in rejected.items()]  # fmt: skip
+        lines += ["", f"Failed episodes that had rejected the goal itself: {failed_after}"]
     low = metrics.get("low_goal_confidence") or []
     if low:
         lines += [

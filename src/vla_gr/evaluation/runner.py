@@ -25,7 +25,13 @@ import torch
 from torch import nn
 
 from vla_gr.envs.metrics import aggregate
-from vla_gr.evaluation.causes import CauseThresholds, failure_cause, wrong_stop_kind
+from vla_gr.evaluation.causes import (
+    CauseThresholds,
+    failure_cause,
+    rejected_goal_kind,
+    wrong_stop_kind,
+)
+from vla_gr.geometry.pose2d import robot_to_map
 
 log = logging.getLogger(__name__)
 
@@ -107,6 +113,25 @@ def _nearest_object(env, xy: tuple[float, float]) -> dict:
     return {**_object_summary(house, obj), "distance": round(max(0.0, _footprint_gap(obj, xy)), 4)}
 
 
+#: A rejected goal cell this close (m) to an object's footprint is taken to be that object.
+REJECTED_NEAR_DISTANCE = 0.5
+
+
+def _rejected_goals(env, rejections: Sequence[dict]) -> list[dict]:
+    """Each goal the agent rejected (its ``episode_summary()['rejections']``: ``reason`` and
+    ``xy`` in the episode-start frame) with the object nearest to it in the world and what
+    that object was (:func:`rejected_goal_kind`)."""
+    u = env.unwrapped
+    out = []
+    for r in rejections:
+        xy = robot_to_map(np.asarray([r["xy"]], np.float64), u.start_pose_world)[0]  # (2,)
+        near = _nearest_object(env, (float(xy[0]), float(xy[1])))
+        goal = _object_summary(u.house, u.goal)
+        kind = rejected_goal_kind(goal, near, REJECTED_NEAR_DISTANCE)
+        out.append({"reason": r["reason"], "kind": kind, "near": near})
+    return out
+
+
 def _goal_pixels(obs: dict, goal_id: int) -> int:
     semantic = obs.get("semantic")
     return -1 if semantic is None else int(np.count_nonzero(semantic == goal_id))
@@ -120,7 +145,9 @@ def run_episode(
     Row keys: ``episode_index``, ``episode_id``, ``spec``, ``metrics`` (the final info),
     ``stopped``, ``cause`` (None on success), ``num_rooms``, ``goal_category``,
     ``instruction_kind``, ``distractor_distances``, ``stopped_near`` (the nearest object) and
-    ``wrong_stop`` (its :func:`wrong_stop_kind`) after a wrong STOP, ``trace`` (``xy`` (T+1, 2),
+    ``wrong_stop`` (its :func:`wrong_stop_kind`) after a wrong STOP, ``rejected_goals`` (each
+    goal the agent rejected: reason, kind and nearest object; see :func:`_rejected_goals`),
+    ``trace`` (``xy`` (T+1, 2),
     ``goal_pixels`` (T+1,) or -1 without semantic, ``distance`` (T+1,)), ``actions``
     (T, 3), ``latency_ms`` ({part: (T,)}), ``parameters``, ``agent`` (the agent's
     ``episode_summary()``, {} without one).
@@ -161,6 +188,7 @@ def run_episode(
     cause = failure_cause(
         bool(metrics["success"]), stopped, np.array(xy), pixels, list(distractor.values()), th
     )
+    summary = agent.episode_summary() if hasattr(agent, "episode_summary") else {}
     return {
         "episode_index": int(index),
         "episode_id": spec.episode_id,
@@ -174,6 +202,7 @@ def run_episode(
         "distractor_distances": distractor,
         "stopped_near": near,
         "wrong_stop": wrong_stop_kind(_object_summary(u.house, u.goal), near) if near else None,
+        "rejected_goals": _rejected_goals(env, summary.get("rejections", [])),
         "trace": {
             "xy": [[round(x, 4), round(y, 4)] for x, y in xy],
             "goal_pixels": pixels,
@@ -182,7 +211,7 @@ def run_episode(
         "actions": actions,
         "latency_ms": {k: [round(v, 4) for v in vals] for k, vals in latency.items()},
         "parameters": agent.parameters(),
-        "agent": agent.episode_summary() if hasattr(agent, "episode_summary") else {},
+        "agent": summary,
     }
 
 

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from vla_gr.envs.metrics import aggregate
-from vla_gr.evaluation.causes import CAUSES, WRONG_STOP_KINDS
+from vla_gr.evaluation.causes import CAUSES, REJECTED_GOAL_KINDS, WRONG_STOP_KINDS
 
 BREAKDOWNS = ("num_rooms", "goal_category", "instruction_kind")
 #: Keys of metrics.json that depend on wall-clock time (excluded from equality checks).
@@ -58,6 +58,24 @@ def wrong_stop_counts(rows: Sequence[dict]) -> dict[str, int]:
         if r.get("wrong_stop") is not None:
             counts[r["wrong_stop"]] += 1
     return counts
+
+
+def rejected_goal_counts(rows: Sequence[dict]) -> dict[str, dict[str, int]]:
+    """Goals the agent rejected, {reason: {kind: count}} (every kind listed), plus
+    ``episodes_failed_after_rejecting_the_goal``: failed episodes in which the goal instance
+    itself was rejected at least once ({} when no row carries rejected goals)."""
+    counts: dict[str, dict[str, int]] = {}
+    failed_after = 0
+    for r in rows:
+        rejected = r.get("rejected_goals") or []
+        for g in rejected:
+            counts.setdefault(g["reason"], dict.fromkeys(REJECTED_GOAL_KINDS, 0))[g["kind"]] += 1
+        if r["cause"] is not None and any(g["kind"] == "goal" for g in rejected):
+            failed_after += 1
+    if not counts:
+        return {}
+    key = "episodes_failed_after_rejecting_the_goal"
+    return {**dict(sorted(counts.items())), key: failed_after}
 
 
 def latency(rows: Sequence[dict]) -> dict[str, dict]:
@@ -116,6 +134,7 @@ def summarize_rows(
         "breakdowns": {key: breakdown(rows, key) for key in BREAKDOWNS},
         "failure_causes": cause_counts(rows),
         "wrong_stops": wrong_stop_counts(rows),
+        "rejected_goals": rejected_goal_counts(rows),
         "low_goal_confidence": low_confidence_episodes(rows),
         "parameters": rows[0]["parameters"],
         "latency_ms": latency(rows),
