@@ -7,6 +7,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from vla_gr.checkpoint import read_checkpoint
 from vla_gr.configs import load_config
 from vla_gr.evaluate import evaluate, expand_aliases
 from vla_gr.policy import VLAGRPolicy
@@ -60,5 +61,14 @@ def test_inference_settings_can_change_on_load_and_export(tmp_path):
     ]  # fmt: skip
     again = VLAGRPolicy.from_pretrained(out)
     assert again.dual_system.follower.config.lookahead == 0.8
+    earlier = read_checkpoint(SHIPPED).state.get("export_overrides", [])
+    export_pretrained(out, out, ["navigator.confirm_ticks=3"])  # in place: the record grows
+    state = read_checkpoint(out).state
+    assert state["export_overrides"] == [
+        *earlier,
+        "pursuit.lookahead=0.8",
+        "navigator.confirm_ticks=3",
+    ]
+    assert state["exported_from"] == str(SHIPPED)
     for (name, a), (_, b) in zip(policy.state_dict().items(), again.state_dict().items()):
         assert torch.equal(a, b), name  # the same weights

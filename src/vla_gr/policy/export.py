@@ -26,7 +26,8 @@ __all__ = ["export_pretrained", "write_checkpoint_folder"]
 
 
 def export_pretrained(src: str | Path, dst: str | Path, overrides: Sequence[str] = ()) -> Path:
-    """Copy checkpoint ``src`` to folder ``dst`` (replaced) with ``overrides`` applied."""
+    """Copy checkpoint ``src`` to folder ``dst`` (replaced) with ``overrides`` applied; its
+    training state lists every override of ``src``'s exports and these (``export_overrides``)."""
     from omegaconf import OmegaConf
 
     from vla_gr.policy.agent import VLAGRPolicy
@@ -37,7 +38,11 @@ def export_pretrained(src: str | Path, dst: str | Path, overrides: Sequence[str]
     config = OmegaConf.create(loaded.config_yaml)
     model = OmegaConf.merge(config.model, OmegaConf.from_dotlist(list(overrides)))
     config.model = model
-    updates = {"exported_from": str(src), "export_overrides": list(overrides)}
+    # the overrides accumulate over exports; re-exporting in place keeps the first origin
+    in_place = Path(src).resolve() == dst.resolve()
+    origin = loaded.state.get("exported_from", str(src)) if in_place else str(src)
+    earlier = list(loaded.state.get("export_overrides", []))
+    updates = {"exported_from": origin, "export_overrides": earlier + list(overrides)}
     return write_checkpoint_folder(dst, loaded, loaded.model, OmegaConf.to_yaml(config), updates)
 
 
