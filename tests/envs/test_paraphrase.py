@@ -12,6 +12,7 @@ from vla_gr.envs.paraphrase import (
     HELD_OUT,
     SYNONYMS,
     TRAINING,
+    VALIDATION,
     paraphrase,
     paraphrase_episodes,
     paraphrase_instructions,
@@ -70,12 +71,22 @@ def _vocabulary_words(v) -> set[str]:
     return set(re.findall(r"[a-z']+", text.replace("{", " {").replace("}", "} ")))
 
 
-def test_the_training_vocabulary_shares_no_word_with_the_held_out_one():
+@pytest.mark.parametrize(
+    "first, second",
+    [(TRAINING, HELD_OUT), (VALIDATION, HELD_OUT), (VALIDATION, TRAINING)],
+    ids=["training-held_out", "validation-held_out", "validation-training"],
+)
+def test_the_vocabularies_share_no_word(first, second):
+    template_words = set(re.findall(r"[a-z']+", " ".join(TEMPLATES).replace("{np}", "")))
+    slots = {"subject", "room", "noun", "color", "in", "is", "a"}  # slots and function words
+    shared = (_vocabulary_words(first) & _vocabulary_words(second)) - template_words - slots
+    assert not shared, shared
+    assert first.synonyms.keys() == second.synonyms.keys()
+
+
+def test_training_paraphrases_use_training_words_only():
     template_words = set(re.findall(r"[a-z']+", " ".join(TEMPLATES).replace("{np}", "")))
     slots = {"subject", "room", "noun", "color", "in", "is"}  # slots and function words
-    shared = (_vocabulary_words(TRAINING) & _vocabulary_words(HELD_OUT)) - template_words - slots
-    assert not shared, shared
-    assert TRAINING.synonyms.keys() == HELD_OUT.synonyms.keys()
     rng = np.random.default_rng(0)
     held_out_words = _vocabulary_words(HELD_OUT) - template_words - slots
     for spec in SPECS:

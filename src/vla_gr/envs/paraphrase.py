@@ -7,9 +7,11 @@ find ...". None of these words or sentence shapes occur in
 :data:`~vla_gr.envs.instructions.TEMPLATES`, so an agent evaluated on them meets language it
 was never trained on. :func:`paraphrase_episodes` rewrites a list of episode specs.
 
-Two vocabularies: :data:`HELD_OUT` (what robustness is measured on) and :data:`TRAINING`
-(disjoint words and shapes, for ``training.paraphrase_prob``: the goal head learns that
-unseen wording can name the same object, without seeing the held-out words).
+Three vocabularies with no word or shape in common: :data:`HELD_OUT` (what robustness is
+measured on), :data:`TRAINING` (for ``training.paraphrase_prob``: the goal head learns that
+unseen wording can name the same object, without seeing the held-out words; and for the
+instruction reader) and :data:`VALIDATION` (for choosing a learned part's settings on unseen
+wording without looking at the held-out set).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ __all__ = [
     "HELD_OUT",
     "SYNONYMS",
     "TRAINING",
+    "VALIDATION",
     "Vocabulary",
     "paraphrase",
     "paraphrase_episodes",
@@ -103,6 +106,34 @@ TRAINING = Vocabulary(
         "your target: {subject}",
         "stop by {subject}",
         "{subject}, please",
+    ),
+)
+
+#: A third set, for selecting settings (thresholds, sizes) on unseen wording: no word or
+#: shape of :data:`HELD_OUT` or :data:`TRAINING` (tests/envs/test_paraphrase.py checks it).
+VALIDATION = Vocabulary(
+    synonyms={
+        "chair": ("rocker", "highchair"),
+        "sofa": ("divan", "chesterfield"),
+        "bed": ("futon", "bedstead"),
+        "toilet": ("privy", "lav"),
+        "tv_monitor": ("flatscreen", "widescreen"),
+        "plant": ("shrub", "bonsai"),
+        "table": ("counter", "trestle"),
+        "cabinet": ("closet", "chest"),
+    },
+    room_words={"living_room": "sitting room", "hallway": "hall", "office": "den"},
+    near_words=("bordering", "up against", "a step from"),
+    color_subject="the {color} {noun}",
+    room_shapes=(
+        "check the {room} for {subject}",
+        "enter the {room}; approach {subject}",
+        "once you reach the {room}, seek out {subject}",
+    ),
+    plain_shapes=(
+        "approach {subject}",
+        "reach {subject}",
+        "drive up to {subject}",
     ),
 )
 

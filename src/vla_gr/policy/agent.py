@@ -40,15 +40,15 @@ from vla_gr.core.dual_system import S1Policy
 from vla_gr.core.encoders import PoseEncoder, RGBDEncoder, build_text_encoder, pose_features
 from vla_gr.core.grounding import (
     GoalHead,
+    InstructionReader,
     ObjectCategorySegmenter,
     ObjectEvidence,
+    Reading,
     RoomTypeClassifier,
     category_match,
     goal_head_loss,
-    instructed_anchor,
-    instructed_category,
-    instructed_room,
     mask_confusion,
+    read_instruction,
 )
 from vla_gr.core.trajectory_attention import TransformerBlock
 from vla_gr.errors import ConfigError
@@ -303,14 +303,17 @@ class VLAGRPolicy(nn.Module):
 
     # ------------------------------------------------------------------ inference
     def _build_dual_system(self, c: ModelConfig) -> None:
-        """S2's goal head (and, with ``room_type.enabled`` and ``object_category.enabled``,
-        its room-type classifier and object-category segmenter) + the navigator on the GR
-        field; S1 (the learned network is built whatever ``s1.kind`` says, so that one
-        checkpoint serves both S1 kinds)."""
+        """S2's goal head (and, with ``room_type.enabled``, ``object_category.enabled`` and
+        ``instruction_reader.enabled``, its room-type classifier, object-category segmenter
+        and instruction reader) + the navigator on the GR field; S1 (the learned network is
+        built whatever ``s1.kind`` says, so that one checkpoint serves both S1 kinds)."""
         self.goal_head = GoalHead(c.goal_head)
         self.room_type = RoomTypeClassifier(c.room_type) if c.room_type.enabled else None
         self.object_category = (
             ObjectCategorySegmenter(c.object_category) if c.object_category.enabled else None
+        )
+        self.instruction_reader = (
+            InstructionReader(c.instruction_reader) if c.instruction_reader.enabled else None
         )
         self.s1 = S1Policy(c.s1)
         self.dual_system = GroundedDualSystem.from_model_config(
@@ -340,12 +343,22 @@ class VLAGRPolicy(nn.Module):
         self.last_goal_visible = float(visible[0])
         return pixels[0].float().cpu().numpy(), self.last_goal_visible  # (H, W), p
 
+    def read_instruction(self, instruction: str) -> Reading:
+        """What the checks take ``instruction`` to name (:func:`read_instruction`: template
+        words, then the instruction reader when the agent has one)."""
+        return read_instruction(
+            instruction,
+            self.config.object_category.categories,
+            self.config.room_type.room_types,
+            self.instruction_reader,
+        )
+
     @torch.no_grad()
     def room_match(self, obs: Mapping) -> float:
         """S2's room check: the probability that the robot is in a room of the type the
         instruction names; 1 when it names none (or the agent has no room classifier)."""
         instruction = as_instructions(obs["instruction"], "obs['instruction']")[0]
-        index = instructed_room(instruction, self.config.room_type.room_types)
+        index = self.read_instruction(instruction).room
         if index is None or self.room_type is None:
             return 1.0
         frame = env_obs_to_frame(obs, device=self.action_scale.device)
@@ -363,8 +376,8 @@ class VLAGRPolicy(nn.Module):
             return ObjectEvidence()
         instruction = as_instructions(obs["instruction"], "obs['instruction']")[0]
         c = self.config.object_category
-        index = instructed_category(instruction, c.categories)
-        anchor = instructed_anchor(instruction, c.categories)
+        reading = self.read_instruction(instruction)
+        index, anchor = reading.category, reading.anchor
         goal = np.asarray(likelihood) >= self.config.navigator.pixel_threshold  # (H, W)
         if index is not None and int(goal.sum()) < c.min_goal_pixels:
             index = None

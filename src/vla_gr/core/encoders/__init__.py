@@ -15,6 +15,7 @@ from vla_gr.core.encoders.text import (
     build_text_encoder,
     default_sentence_model_path,
     hash_instruction,
+    load_sentence_model,
     mean_pool,
 )
 
@@ -28,6 +29,7 @@ __all__ = [
     "SentenceTextEncoder",
     "build_text_encoder",
     "default_sentence_model_path",
+    "load_sentence_model",
     "hash_instruction",
     "mean_pool",
     "pose_features",

@@ -16,6 +16,7 @@ import logging
 import re
 import zlib
 from collections.abc import Sequence
+from functools import lru_cache
 from pathlib import Path
 
 import torch
@@ -33,6 +34,7 @@ __all__ = [
     "HashedTextEncoder",
     "SentenceTextEncoder",
     "default_sentence_model_path",
+    "load_sentence_model",
     "build_text_encoder",
 ]
 
@@ -114,13 +116,33 @@ class _FrozenSentenceModel:
         self.dim = int(self.model.config.hidden_size)
 
     @torch.no_grad()
-    def encode(self, texts: list[str]) -> torch.Tensor:
-        """``texts`` (B,) -> L2-normalised mean-pooled embeddings ``(B, E)`` float32 on CPU."""
+    def encode_tokens(self, texts: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
+        """``texts`` (B,) -> token states ``(B, L, E)`` float32 and attention mask ``(B, L)``
+        (1 for real tokens; the batch is padded to its longest text)."""
         batch = self.tokenizer(
             texts, padding=True, truncation=True, max_length=self.max_length, return_tensors="pt"
         )
         hidden = self.model(**batch).last_hidden_state  # (B, L, E)
-        return F.normalize(mean_pool(hidden, batch["attention_mask"]), dim=-1).float()  # (B, E)
+        return hidden.float(), batch["attention_mask"]
+
+    @torch.no_grad()
+    def encode(self, texts: list[str]) -> torch.Tensor:
+        """``texts`` (B,) -> L2-normalised mean-pooled embeddings ``(B, E)`` float32 on CPU."""
+        hidden, mask = self.encode_tokens(texts)  # (B, L, E), (B, L)
+        return F.normalize(mean_pool(hidden, mask), dim=-1)  # (B, E)
+
+
+@lru_cache(maxsize=4)
+def load_sentence_model(path: str | Path | None = None, max_length: int = 64):
+    """The frozen tokenizer + transformer in folder ``path`` (MiniLM's by default), loaded once
+    per process and shared by whoever reads instructions with it.
+
+    Raises ``FileNotFoundError`` when the folder holds no ``config.json``.
+    """
+    folder = Path(path) if path is not None else default_sentence_model_path()
+    if not (folder / "config.json").is_file():
+        raise FileNotFoundError(f"sentence model folder {folder} has no config.json")
+    return _FrozenSentenceModel(folder, max_length)
 
 
 class SentenceTextEncoder(nn.Module):
@@ -128,13 +150,10 @@ class SentenceTextEncoder(nn.Module):
 
     def __init__(self, dim: int, model_path: str | Path | None = None, max_length: int = 64):
         super().__init__()
-        path = Path(model_path) if model_path is not None else default_sentence_model_path()
-        if not (path / "config.json").is_file():
-            raise FileNotFoundError(f"sentence model folder {path} has no config.json")
-        self._backbone = _FrozenSentenceModel(path, max_length)
+        self._backbone = load_sentence_model(model_path, max_length)
         self.proj = nn.Linear(self._backbone.dim, dim)
         self._cache: dict[str, torch.Tensor] = {}
-        log.info("sentence encoder %s (E=%d), frozen and cached", path, self._backbone.dim)
+        log.info("sentence encoder (E=%d), frozen and cached", self._backbone.dim)
 
     def embed(self, instructions: Sequence[str]) -> torch.Tensor:
         """Frozen embeddings ``(B, E)`` (CPU), computing only strings not yet cached."""

@@ -1,7 +1,14 @@
 """Language grounding for S2: the goal head (pixels of the instructed object), its losses,
-the room-type check of room instructions and the object-category check of every goal."""
+the room-type check of room instructions, the object-category check of every goal, and the
+reader of what an instruction names in words the templates do not use."""
 
 from vla_gr.core.grounding.goal_head import GoalHead, GoalHeadConfig
+from vla_gr.core.grounding.instruction_reader import (
+    InstructionReader,
+    InstructionReaderConfig,
+    Reading,
+    read_instruction,
+)
 from vla_gr.core.grounding.losses import (
     GroundingConfig,
     confusion_metrics,
@@ -23,9 +30,12 @@ __all__ = [
     "GoalHead",
     "GoalHeadConfig",
     "GroundingConfig",
+    "InstructionReader",
+    "InstructionReaderConfig",
     "ObjectCategoryConfig",
     "ObjectCategorySegmenter",
     "ObjectEvidence",
+    "Reading",
     "RoomTypeClassifier",
     "RoomTypeConfig",
     "category_match",
@@ -35,5 +45,6 @@ __all__ = [
     "instructed_category",
     "instructed_room",
     "mask_confusion",
+    "read_instruction",
     "visible_targets",
 ]
