@@ -92,30 +92,6 @@ def test_hashed_text_encoder_is_deterministic_per_string():
     assert set(enc._cache) == {"find the bed", "find the sofa"}
 
 
-@pytest.fixture(scope="module")
-def tiny_bert(tmp_path_factory):
-    """A 2-layer BERT with random weights and a 20-word vocabulary, saved like a hub folder."""
-    transformers = pytest.importorskip("transformers")
-    path = tmp_path_factory.mktemp("bert")
-    words = ["find", "the", "red", "blue", "chair", "bed", "sofa", "go", "to", "in", "kitchen"]
-    (path / "vocab.txt").write_text(
-        "\n".join(["[PAD]", "[UNK]", "[CLS]", "[SEP]", "[MASK]", *words])
-    )
-    tok = transformers.BertTokenizer(vocab_file=str(path / "vocab.txt"))
-    tok.save_pretrained(str(path))
-    config = transformers.BertConfig(
-        vocab_size=len(words) + 5,
-        hidden_size=16,
-        num_hidden_layers=2,
-        num_attention_heads=2,
-        intermediate_size=32,
-        max_position_embeddings=32,
-    )
-    torch.manual_seed(0)
-    transformers.BertModel(config).save_pretrained(str(path))
-    return path
-
-
 def test_sentence_encoder_mean_pools_normalises_and_caches(tiny_bert, monkeypatch):
     enc = SentenceTextEncoder(dim=4, model_path=tiny_bert)
     texts = ["find the red chair in the kitchen", "go to bed"]

@@ -232,29 +232,6 @@ def test_a_real_reader_with_chosen_probabilities_combines_with_the_template(monk
     assert ROOMS[reading.room] == "living_room"
 
 
-@pytest.fixture(scope="module")
-def tiny_bert(tmp_path_factory):
-    """A 2-layer BERT (hidden size 16) with random weights, saved like a hub folder."""
-    transformers = pytest.importorskip("transformers")
-    path = tmp_path_factory.mktemp("reader_bert")
-    words = ["find", "the", "red", "chair", "bed", "sofa", "near", "in", "kitchen", "couch"]
-    (path / "vocab.txt").write_text(
-        "\n".join(["[PAD]", "[UNK]", "[CLS]", "[SEP]", "[MASK]", *words])
-    )
-    transformers.BertTokenizer(vocab_file=str(path / "vocab.txt")).save_pretrained(str(path))
-    config = transformers.BertConfig(
-        vocab_size=len(words) + 5,
-        hidden_size=16,
-        num_hidden_layers=2,
-        num_attention_heads=2,
-        intermediate_size=32,
-        max_position_embeddings=32,
-    )
-    torch.manual_seed(0)
-    transformers.BertModel(config).save_pretrained(str(path))
-    return path
-
-
 def test_encode_and_probabilities_on_a_small_sentence_model(tiny_bert):
     torch.manual_seed(0)
     config = InstructionReaderConfig(token_dim=16, hidden=8)
