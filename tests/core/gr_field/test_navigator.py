@@ -67,6 +67,27 @@ def test_look_around_turns_in_place_until_a_full_turn():
     assert modes[-1] == "explore"
 
 
+@pytest.mark.parametrize("completes", [False, True])
+def test_a_goal_confirmed_during_the_look_around_ends_it_unless_it_completes(completes):
+    nav = make_nav(look_around_completes=completes, confirm_ticks=2, stop_distance=10.0)
+    nav.config.stop_distance_at_end = 10.0
+    yaw, modes = 0.0, []
+    for _ in range(80):
+        depth = room_depth((0.0, 0.0, yaw))
+        plan = nav.plan({"depth": depth, "pose": np.array((0.0, 0.0, yaw), np.float32)},
+                        wall_goal(depth), 1.0)  # fmt: skip
+        modes.append(plan.mode)
+        if plan.mode != "look_around":
+            break
+        yaw += 0.1 * plan.command[1]
+    n_full = math.ceil(2 * math.pi / 0.1)  # ticks of a whole turn (see the test above)
+    assert nav.committed  # the wall ahead became a goal on the second tick, within reach
+    if completes:
+        assert modes == ["look_around"] * n_full + ["stop"]  # STOP only after the whole turn
+    else:
+        assert modes == ["look_around", "stop"]
+
+
 def test_single_tick_false_positive_does_not_commit_but_repeated_evidence_does():
     nav = make_nav(look_around_angle=0.0, confirm_ticks=2)
     pose = (0.0, 0.0, 0.0)

@@ -7,7 +7,8 @@ open-loop command, the mode, a goal confidence and a STOP request.
 
 Modes and transitions (checked in this order every tick)::
 
-    look_around  turn in place until look_around_angle is covered (or a goal is confirmed)
+    look_around  turn in place until look_around_angle is covered (or, unless
+                 look_around_completes, a goal is confirmed)
     recover      blocked or stuck: (a virtual obstacle ahead,) back up, turn; then re-plan
     stop         a confirmed goal cell within stop_distance (stop_distance_at_end when the
                  path ends here), in line of sight, goal pixels in view now and (with
@@ -82,6 +83,9 @@ class NavigatorConfig:
     """Thresholds of the S2 behaviour (metres, radians, ticks); the field has its own config."""
 
     look_around_angle: float = 2.0 * math.pi  # turned in place at the start
+    # finish the turn even when a goal is confirmed during it (no STOP before): the goal's
+    # votes and checks see the whole turn first; False ends the turn at a confirmed goal
+    look_around_completes: bool = False
     turn_rate: float = 1.0  # fraction of the max angular speed for open-loop turns
     pixel_threshold: float = 0.5  # goal likelihood for a pixel to vote for its cell
     # the goal head's per-frame "goal visible" probability below which a tick casts no goal
@@ -326,7 +330,7 @@ class Navigator:
             self.turned += abs(wrap_angle(yaw - self.last_yaw))
         self.last_yaw = yaw
 
-        looking = self.mode == "look_around" and not self.committed
+        looking = self.mode == "look_around" and (cfg.look_around_completes or not self.committed)
         if looking and self.turned < cfg.look_around_angle:
             return self._command_plan("look_around", (0.0, cfg.turn_rate))
         if self.recover_left > 0:
