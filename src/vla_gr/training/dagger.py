@@ -30,6 +30,7 @@ import numpy as np
 from vla_gr.data.collect import make_env, run_expert_episode
 from vla_gr.data.store import EpisodeRecord, EpisodeStore
 from vla_gr.errors import UserError
+from vla_gr.training.command import run_command
 
 log = logging.getLogger(__name__)
 
@@ -140,16 +141,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("run_dir", help="a vla-gr eval run folder on train episodes")
     parser.add_argument("base_store", help="the store the agent was trained on")
     parser.add_argument("out_store", help="the aggregated store to write (must not exist)")
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-    try:
+
+    def work(args: argparse.Namespace) -> None:
         sys.stdout.write(
             json.dumps(aggregate(args.run_dir, args.base_store, args.out_store)) + "\n"
         )
-    except UserError as err:
-        sys.stderr.write(f"{parser.prog}: error: {err}\n")
-        return 2
-    return 0
+
+    return run_command(parser, argv, work, limit_threads=False)
 
 
 if __name__ == "__main__":

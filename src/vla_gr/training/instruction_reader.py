@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -29,6 +28,7 @@ import torch.nn.functional as F
 
 from vla_gr.errors import UserError
 from vla_gr.training.agent_stage import build_agent_from, finish_part
+from vla_gr.training.command import run_command
 
 log = logging.getLogger(__name__)
 
@@ -238,19 +238,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--token-dropout", type=float, default=0.0,
                         help="share of training tokens hidden from the attention")  # fmt: skip
     parser.add_argument("--set", nargs="*", default=[], help="instruction_reader.* settings")
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-    torch.set_num_threads(max(1, min(2, os.cpu_count() or 1)))
-    try:
+
+    def work(args: argparse.Namespace) -> None:
         train_instruction_reader(
             args.init, args.out, count=args.count, steps=args.steps,
             batch_size=args.batch_size, lr=args.lr, seed=args.seed, settings=args.set,
             eval_count=args.eval_count, token_dropout=args.token_dropout,
         )  # fmt: skip
-    except UserError as err:
-        sys.stderr.write(f"{parser.prog}: error: {err}\n")
-        return 2
-    return 0
+
+    return run_command(parser, argv, work, limit_threads=True)
 
 
 if __name__ == "__main__":

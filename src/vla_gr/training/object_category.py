@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -34,6 +33,7 @@ from vla_gr.training.agent_stage import (
     labelled_frames,
     part_setting,
 )
+from vla_gr.training.command import run_command
 from vla_gr.training.object_labels import frame_categories
 
 log = logging.getLogger(__name__)
@@ -177,10 +177,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--reject-threshold", type=float, default=0.3, help="navigator.object_reject_threshold"
     )
     parser.add_argument("--set", nargs="*", default=[], help="object_category.* settings")
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-    torch.set_num_threads(max(1, min(2, os.cpu_count() or 1)))
-    try:
+
+    def work(args: argparse.Namespace) -> None:
         categories = _categories(args.set)
         frames = category_frames(args.store, categories, args.first, args.episodes, args.stride)
         eval_frames = (
@@ -193,10 +191,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             batch_size=args.batch_size, lr=args.lr, seed=args.seed, settings=args.set,
             reject_threshold=args.reject_threshold, eval_frames=eval_frames,
         )  # fmt: skip
-    except UserError as err:
-        sys.stderr.write(f"{parser.prog}: error: {err}\n")
-        return 2
-    return 0
+
+    return run_command(parser, argv, work, limit_threads=True)
 
 
 if __name__ == "__main__":

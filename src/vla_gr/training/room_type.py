@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -37,6 +36,7 @@ from vla_gr.training.agent_stage import (
     labelled_frames,
     part_setting,
 )
+from vla_gr.training.command import run_command
 
 log = logging.getLogger(__name__)
 
@@ -190,14 +190,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--reject-threshold", type=float, default=0.2,
                         help="navigator.room_reject_threshold written with the agent")  # fmt: skip
     parser.add_argument("--set", nargs="*", default=[], help="room_type.* settings")
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-    torch.set_num_threads(max(1, min(2, os.cpu_count() or 1)))
-    try:
+
+    def work(args: argparse.Namespace) -> None:
         if args.classifier_from:
             threshold = f"navigator.room_reject_threshold={args.reject_threshold}"
             graft_part(args.init, args.classifier_from, "room_type", args.out, [threshold])
-            return 0
+            return
         if not args.store:
             raise UserError("--store is required unless --classifier-from names a checkpoint")
         room_types = _room_types(args.set)
@@ -212,10 +210,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             lr=args.lr, seed=args.seed, settings=args.set,
             reject_threshold=args.reject_threshold, eval_frames=eval_frames,
         )  # fmt: skip
-    except UserError as err:
-        sys.stderr.write(f"{parser.prog}: error: {err}\n")
-        return 2
-    return 0
+
+    return run_command(parser, argv, work, limit_threads=True)
 
 
 if __name__ == "__main__":

@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import os
 import sys
 import time
 from collections.abc import Sequence
@@ -32,6 +31,7 @@ import torch
 from vla_gr.core.dual_system.s1_inputs import PlanMemory
 from vla_gr.errors import UserError
 from vla_gr.training.agent_stage import build_agent_from, write_agent
+from vla_gr.training.command import run_command
 from vla_gr.training.optim import build_optimizer, build_scheduler
 from vla_gr.training.s1_data import load_s1_data
 
@@ -192,18 +192,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--set", nargs="*", default=[], help="s1.* settings, e.g. s1.dim=64")
     parser.add_argument("--init-s1", action="store_true", help="start from init's S1 weights")
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-    torch.set_num_threads(max(1, min(2, os.cpu_count() or 1)))
-    try:
+
+    def work(args: argparse.Namespace) -> None:
         train_s1(
             args.init, args.out, args.data, steps=args.steps, batch_size=args.batch_size,
             lr=args.lr, seed=args.seed, settings=args.set, init_s1=args.init_s1,
         )  # fmt: skip
-    except UserError as err:
-        sys.stderr.write(f"{parser.prog}: error: {err}\n")
-        return 2
-    return 0
+
+    return run_command(parser, argv, work, limit_threads=True)
 
 
 if __name__ == "__main__":

@@ -18,7 +18,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from vla_gr.errors import UserError
+from vla_gr.training.command import run_command
 
 log = logging.getLogger(__name__)
 
@@ -70,15 +70,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("work_dir", help="rollouts/, data/ and agent/ go here")
     parser.add_argument("overrides", nargs="*", help="config overrides, e.g. training.s1.steps=500")
     parser.add_argument("--config-name", default="config_cpu")
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-    try:
+
+    def work(args: argparse.Namespace) -> None:
         _, cfg = load_config(args.config_name, args.overrides)
         sys.stdout.write(f"{run_s1_stage(cfg, args.checkpoint, args.work_dir)}\n")
-    except UserError as err:
-        sys.stderr.write(f"{parser.prog}: error: {err}\n")
-        return 2
-    return 0
+
+    return run_command(parser, argv, work, limit_threads=False)
 
 
 if __name__ == "__main__":
