@@ -9,7 +9,8 @@ Runs ``vla-gr eval`` (the ``config_cpu`` recipe) once per condition on episodes
 - ``clean``: as they are;
 - ``paraphrase``: the same episodes with instructions rewritten by
   :func:`vla_gr.envs.paraphrase.paraphrase_episodes` (synonyms and sentence shapes the
-  templates never use);
+  templates never use): in the held-out vocabulary, or with ``--vocabulary validation`` in
+  the one for choosing settings (its results file gets a ``_validation`` suffix);
 - ``depth_noise``: ``env.depth_noise_std=0.02`` (Gaussian, metres, per pixel);
 - ``actuation_noise``: ``env.actuation_noise=0.1`` (+-10% on v and w, per step).
 
@@ -47,7 +48,8 @@ def run_condition(name: str, args, episodes_file: Path | None) -> dict:
     from vla_gr.configs import load_config
     from vla_gr.evaluate import evaluate, expand_aliases
 
-    out = Path(args.output) / f"{args.split}-{name}"
+    validation = name == "paraphrase" and args.vocabulary == "validation"
+    out = Path(args.output) / (f"{args.split}-{name}" + ("-validation" if validation else ""))
     overrides = [
         f"agent={args.agent}",
         f"workers={args.workers}",
@@ -74,9 +76,12 @@ def paraphrased_episodes(args) -> Path:
     from vla_gr.envs.paraphrase import paraphrase_episodes
 
     specs = [sample_episode(args.split, k) for k in range(args.first, args.first + args.episodes)]
-    path = Path(args.output) / f"{args.split}-paraphrased.jsonl"
+    from vla_gr.envs.paraphrase import HELD_OUT, VALIDATION
+
+    vocabulary = VALIDATION if args.vocabulary == "validation" else HELD_OUT
+    path = Path(args.output) / f"{args.split}-paraphrased-{args.vocabulary}.jsonl"
     path.parent.mkdir(parents=True, exist_ok=True)
-    return save_episodes(path, paraphrase_episodes(specs, seed=0))
+    return save_episodes(path, paraphrase_episodes(specs, seed=0, vocabulary=vocabulary))
 
 
 def main() -> None:
@@ -94,6 +99,10 @@ def main() -> None:
     parser.add_argument(
         "--name", help="the results file's agent part (default: --agent); one per checkpoint"
     )
+    parser.add_argument(
+        "--vocabulary", choices=("held_out", "validation"), default="held_out",
+        help="the paraphrases' vocabulary: held_out reports, validation chooses settings",
+    )  # fmt: skip
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)
     rows, t0 = {}, time.perf_counter()
@@ -111,7 +120,8 @@ def main() -> None:
         }
         print(f"{name}: SR {rows[name]['SR']:.3f} SPL {rows[name]['SPL']:.3f}", flush=True)
     RESULTS.mkdir(exist_ok=True)
-    stem = RESULTS / f"bench_robustness_{args.name or args.agent}_{args.split}"
+    suffix = "_validation" if args.vocabulary == "validation" else ""
+    stem = RESULTS / f"bench_robustness_{args.name or args.agent}_{args.split}{suffix}"
     key = [args.agent, args.checkpoint, args.split, args.first, args.episodes]
     if stem.with_suffix(".json").is_file():  # conditions of an earlier run on the same episodes
         old = json.loads(stem.with_suffix(".json").read_text())
@@ -122,7 +132,9 @@ def main() -> None:
     command = (
         f"python benchmarks/bench_robustness.py --agent {args.agent} --checkpoint "
         f"{args.checkpoint} --split {args.split} --first {args.first} --episodes "
-        f"{args.episodes} --workers {args.workers}" + (f" --name {args.name}" if args.name else "")
+        f"{args.episodes} --workers {args.workers}"
+        + (f" --name {args.name}" if args.name else "")
+        + (" --vocabulary validation" if args.vocabulary == "validation" else "")
     )
     lines = [
         f"# Robustness: {args.agent} on {args.split} {args.first}-{args.first + args.episodes - 1}",

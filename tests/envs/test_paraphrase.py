@@ -49,6 +49,9 @@ def test_paraphrase_episodes_changes_only_the_instruction_and_replays():
     for old, new in zip(SPECS[:5], a):
         assert new.instruction != old.instruction
         assert new.to_dict() | {"instruction": old.instruction} == old.to_dict()
+    for old, new in zip(SPECS[:5], paraphrase_episodes(SPECS[:5], 1, VALIDATION)):
+        words = VALIDATION.synonyms[parse_instruction(old.instruction)["category"]]
+        assert any(w in new.instruction for w in words), new.instruction
 
 
 def test_unknown_category_is_refused():

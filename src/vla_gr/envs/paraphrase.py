@@ -191,7 +191,13 @@ def paraphrase_instructions(
     return out
 
 
-def paraphrase_episodes(specs: Sequence[EpisodeSpec], seed: int = 0) -> list[EpisodeSpec]:
-    """The same episodes with paraphrased instructions (deterministic for a ``seed``)."""
+def paraphrase_episodes(
+    specs: Sequence[EpisodeSpec], seed: int = 0, vocabulary: Vocabulary = HELD_OUT
+) -> list[EpisodeSpec]:
+    """The same episodes with instructions paraphrased in ``vocabulary`` (deterministic for a
+    ``seed``)."""
     rng = np.random.default_rng(seed)
-    return [dataclasses.replace(s, instruction=paraphrase(s.instruction, rng)) for s in specs]
+    return [
+        dataclasses.replace(s, instruction=paraphrase(s.instruction, rng, vocabulary))
+        for s in specs
+    ]

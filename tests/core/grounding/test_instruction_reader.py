@@ -153,6 +153,16 @@ def test_read_fills_only_confident_named_fields_in_the_checks_indexing(monkeypat
     assert reader.read("a").source == {}  # the reader alone says who filled nothing
 
 
+def test_read_fills_only_the_fields_it_is_given(monkeypatch):
+    reader = small(fields=["category"])
+    sure = {"category": (4, 1.0), "anchor": (2, 1.0), "room": (3, 1.0)}
+    fake_probabilities(reader, monkeypatch, {"x": sure})
+    assert reader.read("x") == Reading(category=4, anchor=None, room=None)
+    for fields in (["colour"], ["room", "room"]):
+        with pytest.raises(ValueError, match=r"model\.instruction_reader\.fields="):
+            InstructionReaderConfig(fields=fields)
+
+
 def test_readings_are_cached_per_instruction_until_train_or_eval(monkeypatch):
     reader = small()
     sure = {"category": (2, 1.0), "anchor": (0, 1.0), "room": (1, 1.0)}

@@ -55,6 +55,8 @@ class InstructionReaderConfig:
     min_confidence: float = 0.9  # a field is filled only at this probability or above
     token_dim: int = 384  # width of the sentence encoder's token states (MiniLM: 384)
     max_length: int = 64  # tokens read per instruction
+    # the fields it may fill (all three are trained; the others stay with the template words)
+    fields: list[str] = field(default_factory=lambda: ["category", "anchor", "room"])
     categories: list[str] = field(
         default_factory=lambda: [
             "chair", "sofa", "bed", "toilet", "tv_monitor", "plant", "table", "cabinet",
@@ -70,6 +72,12 @@ class InstructionReaderConfig:
         if not 0.0 < self.min_confidence <= 1.0:
             raise ValueError(
                 f"model.instruction_reader.min_confidence={self.min_confidence} must be in (0, 1]"
+            )
+        unknown = sorted(set(self.fields) - set(FIELDS))
+        if unknown or len(set(self.fields)) != len(self.fields):
+            raise ValueError(
+                f"model.instruction_reader.fields={list(self.fields)} must name distinct fields "
+                f"of {list(FIELDS)}"
             )
         for key in ("hidden", "token_dim", "max_length"):
             value = getattr(self, key)
@@ -146,13 +154,15 @@ class InstructionReader(nn.Module):
         return {name: F.softmax(v.float(), dim=-1).cpu() for name, v in logits.items()}
 
     def read(self, instruction: str) -> Reading:
-        """The fields the reader is confident about (cached per instruction string)."""
+        """The fields of ``config.fields`` the reader is confident about (cached per
+        instruction string)."""
         if instruction not in self._cache:
             probs = self.probabilities([instruction])
             found: dict[str, int | None] = {}
             for name in FIELDS:
                 p, k = probs[name][0].max(dim=0)
                 confident = float(p) >= self.config.min_confidence and int(k) > 0
+                confident = confident and name in self.config.fields
                 # category/anchor: 1-based like the segmenter's classes; room: 0-based
                 found[name] = None if not confident else int(k) - (name == "room")
             self._cache[instruction] = Reading(**found)
