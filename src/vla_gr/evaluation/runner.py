@@ -117,16 +117,16 @@ def _nearest_object(env, xy: tuple[float, float]) -> dict:
 REJECTED_NEAR_DISTANCE = 0.5
 
 
-def _rejected_goals(env, rejections: Sequence[dict]) -> list[dict]:
+def _rejected_goals(env, rejections: Sequence[dict], goal: dict) -> list[dict]:
     """Each goal the agent rejected (its ``episode_summary()['rejections']``: ``reason`` and
     ``xy`` in the episode-start frame) with the object nearest to it in the world and what
-    that object was (:func:`rejected_goal_kind`)."""
-    u = env.unwrapped
+    that object was against ``goal`` (the goal's :func:`_object_summary`;
+    :func:`rejected_goal_kind`)."""
+    start = env.unwrapped.start_pose_world  # (3,)
     out = []
     for r in rejections:
-        xy = robot_to_map(np.asarray([r["xy"]], np.float64), u.start_pose_world)[0]  # (2,)
+        xy = robot_to_map(np.asarray([r["xy"]], np.float64), start)[0]  # (2,)
         near = _nearest_object(env, (float(xy[0]), float(xy[1])))
-        goal = _object_summary(u.house, u.goal)
         kind = rejected_goal_kind(goal, near, REJECTED_NEAR_DISTANCE)
         out.append({"reason": r["reason"], "kind": kind, "near": near})
     return out
@@ -189,6 +189,7 @@ def run_episode(
         bool(metrics["success"]), stopped, np.array(xy), pixels, list(distractor.values()), th
     )
     summary = agent.episode_summary() if hasattr(agent, "episode_summary") else {}
+    goal = _object_summary(u.house, u.goal)
     return {
         "episode_index": int(index),
         "episode_id": spec.episode_id,
@@ -201,8 +202,8 @@ def run_episode(
         "instruction_kind": instruction_kind(spec.instruction),
         "distractor_distances": distractor,
         "stopped_near": near,
-        "wrong_stop": wrong_stop_kind(_object_summary(u.house, u.goal), near) if near else None,
-        "rejected_goals": _rejected_goals(env, summary.get("rejections", [])),
+        "wrong_stop": wrong_stop_kind(goal, near) if near else None,
+        "rejected_goals": _rejected_goals(env, summary.get("rejections", []), goal),
         "trace": {
             "xy": [[round(x, 4), round(y, 4)] for x, y in xy],
             "goal_pixels": pixels,

@@ -72,6 +72,7 @@ def reader_corpus(
     from vla_gr.core.grounding import InstructionReaderConfig
     from vla_gr.envs.instructions import render_instruction
     from vla_gr.envs.paraphrase import HELD_OUT, TRAINING, VALIDATION, paraphrase
+    from vla_gr.envs.scene import category_display_name
 
     choices = ("training", "validation", "held_out", "template")
     if vocabulary not in choices:
@@ -90,7 +91,7 @@ def reader_corpus(
             text = paraphrase(text, rng, VALIDATION if vocabulary == "validation" else HELD_OUT)
         elif vocabulary == "training" and draw < unknown_share:
             noun = str(rng.choice(UNKNOWN_OBJECTS))
-            spoken = desc.category.replace("tv_monitor", "tv")
+            spoken = category_display_name(desc.category)  # as render_instruction says it
             text = text.replace(spoken, noun, 1)  # the goal noun comes first
             category = 0
         elif vocabulary == "training" and draw >= unknown_share + template_share:

@@ -117,3 +117,14 @@ def test_real_minilm_ranks_paraphrases_above_other_goals():
     e = enc.embed(["find the red chair", "go to the red chair", "find the bed in the bathroom"])
     assert e.shape == (3, 384)
     assert float(e[0] @ e[1]) > float(e[0] @ e[2]) + 0.1
+
+
+def test_a_sentence_model_is_loaded_once_however_its_folder_is_spelt(tiny_bert):
+    from vla_gr.core.encoders import load_sentence_model
+
+    model = load_sentence_model(tiny_bert)
+    assert load_sentence_model(str(tiny_bert)) is model
+    assert load_sentence_model(tiny_bert / ".") is model
+    assert load_sentence_model(tiny_bert, max_length=8) is not model  # another setting
+    with pytest.raises(FileNotFoundError, match="has no config.json"):
+        load_sentence_model(tiny_bert.parent)

@@ -132,16 +132,21 @@ class _FrozenSentenceModel:
         return F.normalize(mean_pool(hidden, mask), dim=-1)  # (B, E)
 
 
-@lru_cache(maxsize=4)
 def load_sentence_model(path: str | Path | None = None, max_length: int = 64):
     """The frozen tokenizer + transformer in folder ``path`` (MiniLM's by default), loaded once
-    per process and shared by whoever reads instructions with it.
+    per process (per resolved folder, however it is spelt) and shared by whoever reads
+    instructions with it.
 
     Raises ``FileNotFoundError`` when the folder holds no ``config.json``.
     """
     folder = Path(path) if path is not None else default_sentence_model_path()
     if not (folder / "config.json").is_file():
         raise FileNotFoundError(f"sentence model folder {folder} has no config.json")
+    return _load_sentence_model(folder.resolve(), max_length)
+
+
+@lru_cache(maxsize=4)
+def _load_sentence_model(folder: Path, max_length: int):
     return _FrozenSentenceModel(folder, max_length)
 
 
