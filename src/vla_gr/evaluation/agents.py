@@ -179,9 +179,12 @@ class PolicyAgent:
         return getattr(self.policy, "last_timings", None)
 
     def episode_summary(self) -> dict:
-        """The dual system's goal confidence and last mode ({} for an end-to-end policy)."""
+        """The dual system's goal confidence and last mode, and with an instruction lexicon
+        the instruction as S2 read it (``read_as``); {} for an end-to-end policy."""
         system = getattr(self.policy, "dual_system", None)
-        return system.episode_summary() if system is not None else {}
+        summary = system.episode_summary() if system is not None else {}
+        read_as = getattr(self.policy, "read_as", None)
+        return summary | ({"read_as": read_as} if read_as is not None else {})
 
     def parameters(self) -> dict[str, int]:
         return module_parameters(self.policy) if isinstance(self.policy, nn.Module) else {}

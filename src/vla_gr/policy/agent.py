@@ -40,6 +40,7 @@ from vla_gr.core.dual_system import S1Policy
 from vla_gr.core.encoders import PoseEncoder, RGBDEncoder, build_text_encoder, pose_features
 from vla_gr.core.grounding import (
     GoalHead,
+    InstructionLexicon,
     InstructionReader,
     ObjectCategorySegmenter,
     ObjectEvidence,
@@ -65,6 +66,7 @@ INFERENCE_SETTINGS = (
     "navigator.",
     "pursuit.",
     "gr_field.",
+    "instruction_lexicon.",
     "dual_system.planning_frequency_hz",
     "goal_head.category_gate",
     "goal_head.test_time_flip",
@@ -305,8 +307,10 @@ class VLAGRPolicy(nn.Module):
     def _build_dual_system(self, c: ModelConfig) -> None:
         """S2's goal head (and, with ``room_type.enabled``, ``object_category.enabled`` and
         ``instruction_reader.enabled``, its room-type classifier, object-category segmenter
-        and instruction reader) + the navigator on the GR field; S1 (the learned network is
-        built whatever ``s1.kind`` says, so that one checkpoint serves both S1 kinds)."""
+        and instruction reader; with ``instruction_lexicon.enabled``, the lexicon that says the
+        instruction in template words before S2 reads it) + the navigator on the GR field; S1
+        (the learned network is built whatever ``s1.kind`` says, so that one checkpoint
+        serves both S1 kinds)."""
         self.goal_head = GoalHead(c.goal_head)
         self.room_type = RoomTypeClassifier(c.room_type) if c.room_type.enabled else None
         self.object_category = (
@@ -314,6 +318,9 @@ class VLAGRPolicy(nn.Module):
         )
         self.instruction_reader = (
             InstructionReader(c.instruction_reader) if c.instruction_reader.enabled else None
+        )
+        self.instruction_lexicon = (
+            InstructionLexicon(c.instruction_lexicon) if c.instruction_lexicon.enabled else None
         )
         self.s1 = S1Policy(c.s1)
         self.dual_system = GroundedDualSystem.from_model_config(
@@ -394,7 +401,11 @@ class VLAGRPolicy(nn.Module):
     def _dual_system_step(self, obs: Mapping) -> torch.Tensor:
         """One control step of the dual system (S2 every ``plan_every`` steps, S1 every step;
         see :mod:`vla_gr.policy.dual_system`) -> action (1, A)."""
-        action = self.dual_system.step(_single_observation(obs))  # (A,)
+        obs = _single_observation(obs)
+        if self.instruction_lexicon is not None:
+            said = as_instructions(obs["instruction"], "obs['instruction']")[0]
+            obs["instruction"] = self.read_as = self.instruction_lexicon.canonical(said)
+        action = self.dual_system.step(obs)  # (A,)
         self.last_timings = self.dual_system.last_timings
         return torch.from_numpy(action).to(self.action_scale.device)[None]  # (1, A)
 
@@ -415,6 +426,7 @@ class VLAGRPolicy(nn.Module):
         """Forget the observation history and the queued actions (call at episode start)."""
         self._obs_queue: deque[dict] = deque(maxlen=self.config.n_obs_steps)
         self._action_queue: deque[torch.Tensor] = deque(maxlen=self.config.n_action_steps)
+        self.read_as: str | None = None  # this episode's instruction as the lexicon said it
         if self.has_goal_head:
             self.dual_system.reset()
 

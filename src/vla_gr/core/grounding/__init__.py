@@ -1,6 +1,7 @@
 """Language grounding for S2: the goal head (pixels of the instructed object), its losses,
 the room-type check of room instructions, the object-category check of every goal, and the
-reader of what an instruction names in words the templates do not use."""
+reader of what an instruction names in words the templates do not use, and the lexicon that
+says such an instruction again in template words."""
 
 from vla_gr.core.grounding.goal_head import GoalHead, GoalHeadConfig
 from vla_gr.core.grounding.instruction_reader import (
@@ -8,6 +9,11 @@ from vla_gr.core.grounding.instruction_reader import (
     InstructionReaderConfig,
     Reading,
     read_instruction,
+)
+from vla_gr.core.grounding.lexicon import (
+    InstructionLexicon,
+    InstructionLexiconConfig,
+    LexiconReading,
 )
 from vla_gr.core.grounding.losses import (
     GroundingConfig,
@@ -30,8 +36,11 @@ __all__ = [
     "GoalHead",
     "GoalHeadConfig",
     "GroundingConfig",
+    "InstructionLexicon",
+    "InstructionLexiconConfig",
     "InstructionReader",
     "InstructionReaderConfig",
+    "LexiconReading",
     "ObjectCategoryConfig",
     "ObjectCategorySegmenter",
     "ObjectEvidence",

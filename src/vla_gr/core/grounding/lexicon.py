@@ -1,0 +1,242 @@
+"""Say an instruction in the agent's own words: nouns mapped to the nearest known name.
+
+The goal head, and S2's checks, learned the words of the templates ("sofa", "tv", "living
+room"). Other words for the same things ("couch", "television", "lounge") reach the goal head
+as an unfamiliar sentence and leave the checks' fields empty. :class:`InstructionLexicon`
+reads the nouns of an instruction and maps each one to the category or room type whose name
+the frozen sentence encoder places nearest (cosine similarity of the word's embedding and the
+name's), then says the instruction again in the template phrasing:
+
+    "go into the lounge and find the couch close to the houseplant"
+    -> "find the sofa next to the plant"       (lounge: too far from every room name)
+
+No word list is learned or stored: the encoder's own sense of which words are alike does
+the mapping, so a word never seen in training can still find its name. What counts as a noun
+is the first word after an article (the, a, an) that is not a colour word. Nouns are read in
+order: a room type when the word is at least ``room_threshold`` similar to a room name and
+nearer to it than to any category, otherwise the goal (the first) or a relation's anchor
+(the second) when the nearest category leads the runner-up by ``category_margin``; a noun
+that does not is kept as it was said. An instruction in which the template readers already
+find what the lexicon reads comes out unchanged, so template instructions reach the agent
+exactly as before.
+
+``model.instruction_lexicon`` has no weights: its settings are inference settings
+(``python -m vla_gr.policy.export``), chosen on the validation paraphrase vocabulary.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import torch
+import torch.nn.functional as F
+
+from vla_gr.core.encoders.text import load_sentence_model
+from vla_gr.core.grounding.object_category import (
+    instructed_anchor,
+    instructed_category,
+    spoken_name,
+)
+from vla_gr.core.grounding.room_type import instructed_room
+
+__all__ = ["InstructionLexicon", "InstructionLexiconConfig", "LexiconReading"]
+
+_ARTICLES = frozenset({"the", "a", "an"})
+_WORD = re.compile(r"[a-z]+(?:'[a-z]+)?")
+
+
+@dataclass
+class InstructionLexiconConfig:
+    """The instruction lexicon (``model.instruction_lexicon.*``); no weights.
+
+    ``categories`` and ``room_types`` follow ``model.object_category.categories`` and
+    ``model.room_type.room_types``.
+    """
+
+    enabled: bool = False  # say non-template instructions in template words before S2 reads them
+    room_threshold: float = 0.6  # cosine similarity at which a noun can name a room type
+    category_margin: float = 0.05  # lead of the nearest category over the next one to name it
+    colors: list[str] = field(
+        default_factory=lambda: [
+            "red", "blue", "green", "yellow", "white", "black", "orange", "purple",
+        ]
+    )  # fmt: skip
+    categories: list[str] = field(
+        default_factory=lambda: [
+            "chair", "sofa", "bed", "toilet", "tv_monitor", "plant", "table", "cabinet",
+        ]
+    )  # fmt: skip
+    room_types: list[str] = field(
+        default_factory=lambda: [
+            "kitchen", "living_room", "bedroom", "bathroom", "office", "hallway",
+        ]
+    )  # fmt: skip
+
+    def __post_init__(self) -> None:
+        if not -1.0 <= self.room_threshold <= 1.0:
+            raise ValueError(
+                f"model.instruction_lexicon.room_threshold={self.room_threshold} must be in "
+                "[-1, 1] (a cosine similarity)"
+            )
+        if not 0.0 <= self.category_margin <= 2.0:
+            raise ValueError(
+                f"model.instruction_lexicon.category_margin={self.category_margin} must be in "
+                "[0, 2]"
+            )
+
+
+@dataclass(frozen=True)
+class LexiconReading:
+    """What the lexicon took an instruction to say. ``category`` / ``anchor`` / ``room`` are
+    names from the config (None: not said or not recognised); ``goal_word`` / ``anchor_word``
+    are the nouns as said (None without one)."""
+
+    category: str | None = None
+    color: str | None = None
+    room: str | None = None
+    anchor: str | None = None
+    goal_word: str | None = None
+    anchor_word: str | None = None
+    room_word: str | None = None
+
+
+class InstructionLexicon:
+    """Maps an instruction's nouns to the config's category and room-type names and renders
+    the template phrasing (:meth:`canonical`); results are cached per instruction."""
+
+    def __init__(
+        self, config: InstructionLexiconConfig | None = None, model_path=None, encoder=None
+    ) -> None:
+        """``encoder`` (anything with ``encode(texts) -> (N, E)``) replaces the frozen sentence
+        model in folder ``model_path`` (MiniLM's by default)."""
+        self.config = c = config or InstructionLexiconConfig()
+        self._encoder = encoder if encoder is not None else load_sentence_model(model_path)
+        self._category_names = [spoken_name(k) for k in c.categories]
+        self._room_names = [r.replace("_", " ") for r in c.room_types]
+        self._categories = self._embed(self._category_names)  # (K, E)
+        self._rooms = self._embed(self._room_names)  # (R, E)
+        self._words: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}
+        self._canonical: dict[str, str] = {}
+
+    def _embed(self, texts: Sequence[str]) -> torch.Tensor:
+        return F.normalize(self._encoder.encode(list(texts)).float(), dim=-1)  # (N, E)
+
+    def similarities(self, word: str) -> tuple[torch.Tensor, torch.Tensor]:
+        """Cosine similarity of ``word`` to each category name (K,) and room name (R,)."""
+        if word not in self._words:
+            e = self._embed([word])[0]  # (E,)
+            self._words[word] = (self._categories @ e, self._rooms @ e)  # (K,), (R,)
+        return self._words[word]
+
+    def _room_of(self, words: list[str], i: int) -> tuple[str | None, int]:
+        """(room type named by the noun at ``words[i]`` or its two-word phrase, words used)."""
+        for span in (2, 1):
+            phrase = " ".join(words[i : i + span])
+            if span == 2 and i + 1 >= len(words):
+                continue
+            if phrase in self._room_names:
+                return self.config.room_types[self._room_names.index(phrase)], span
+        best: tuple[float, int, int] = (-2.0, 0, 1)  # (similarity, room index, span)
+        for span in (1, 2):
+            if i + span > len(words):
+                break
+            to_categories, to_rooms = self.similarities(" ".join(words[i : i + span]))
+            score, room = to_rooms.max(dim=0)
+            if float(score) > best[0] and float(score) > float(to_categories.max()):
+                best = (float(score), int(room), span)
+        if best[0] >= self.config.room_threshold:
+            return self.config.room_types[best[1]], best[2]
+        return None, 1
+
+    def _category_of(self, word: str) -> str | None:
+        """The category ``word`` names: its own name, or the nearest one by ``category_margin``."""
+        if word in self._category_names:
+            return self.config.categories[self._category_names.index(word)]
+        to_categories, _ = self.similarities(word)
+        top = to_categories.topk(min(2, len(to_categories)))
+        lead = float(top.values[0] - top.values[1]) if len(top.values) > 1 else 2.0
+        if lead < self.config.category_margin:
+            return None
+        return self.config.categories[int(top.indices[0])]
+
+    def read(self, instruction: str) -> LexiconReading:
+        """The goal noun, its colour, room and relation anchor as the config names them."""
+        if not isinstance(instruction, str):
+            raise TypeError(f"instruction must be a str, got {type(instruction).__name__}")
+        words = _WORD.findall(instruction.lower())
+        colors = [w for w in words if w in self.config.colors]
+        nouns: list[tuple[str, str | None]] = []  # (word as said, category or None)
+        room = room_word = None
+        i = 0
+        while i < len(words):
+            if words[i] not in _ARTICLES:
+                i += 1
+                continue
+            i += 1
+            while i < len(words) and words[i] in self.config.colors:
+                i += 1
+            if i >= len(words):
+                break
+            named_room, used = self._room_of(words, i)
+            if named_room is not None and room is None:
+                room, room_word = named_room, " ".join(words[i : i + used])
+            elif named_room is None and len(nouns) < 2:
+                nouns.append((words[i], self._category_of(words[i])))
+            i += used
+        goal = nouns[0] if nouns else (None, None)
+        anchor = nouns[1] if len(nouns) > 1 else (None, None)
+        return LexiconReading(
+            category=goal[1],
+            color=colors[0] if colors else None,
+            room=room,
+            anchor=anchor[1],
+            goal_word=goal[0],
+            anchor_word=anchor[0],
+            room_word=room_word,
+        )
+
+    def render(self, reading: LexiconReading) -> str | None:
+        """The template phrasing of ``reading`` (unrecognised nouns as said), or None without
+        a goal noun."""
+        if reading.goal_word is None:
+            return None
+        goal = reading.goal_word if reading.category is None else spoken_name(reading.category)
+        words = ["find the"] + ([reading.color] if reading.color else []) + [goal]
+        if reading.room is not None:
+            words.append(f"in the {reading.room.replace('_', ' ')}")
+        if reading.anchor_word is not None:
+            anchor = reading.anchor_word if reading.anchor is None else spoken_name(reading.anchor)
+            words.append(f"next to the {anchor}")
+        return " ".join(words)
+
+    def canonical(self, instruction: str) -> str:
+        """``instruction`` in template words; unchanged when the template readers
+        (:func:`instructed_category`, :func:`instructed_anchor`, :func:`instructed_room`)
+        already find in it what the lexicon reads, or when it has no goal noun."""
+        if instruction not in self._canonical:
+            reading = self.read(instruction)
+            rendered = self.render(reading)
+            if rendered is None or self._template_reads(instruction) == self._indices(reading):
+                rendered = instruction
+            self._canonical[instruction] = rendered
+        return self._canonical[instruction]
+
+    def _template_reads(self, instruction: str) -> tuple[int | None, ...]:
+        c = self.config
+        return (
+            instructed_category(instruction, c.categories),
+            instructed_anchor(instruction, c.categories),
+            instructed_room(instruction, c.room_types),
+        )
+
+    def _indices(self, reading: LexiconReading) -> tuple[int | None, ...]:
+        """``reading`` as the template readers index it (categories 1-based, rooms 0-based)."""
+        c = self.config
+        category, anchor, room = reading.category, reading.anchor, reading.room
+        return (
+            None if category is None else c.categories.index(category) + 1,
+            None if anchor is None else c.categories.index(anchor) + 1,
+            None if room is None else c.room_types.index(room),
+        )
