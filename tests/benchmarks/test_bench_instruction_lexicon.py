@@ -41,3 +41,10 @@ def test_reading_scores_count_right_wrong_and_whole_instructions():
     assert scores["anchor"] == {"named": 0.25, "right": 0.25, "wrong": 0.0}
     assert scores["room"] == {"named": 0.5, "right": 0.5, "wrong": 0.0}
     assert scores["all_right"] == 0.75  # the lamp: nothing named, as labelled
+
+
+def test_net_right_weighs_a_wrong_reading_against_a_right_one():
+    scores = {f: {"right": 0.5, "wrong": 0.1} for f in bench.FIELDS}
+    assert abs(bench.net_right(scores) - 1.2) < 1e-12
+    scores["category"]["wrong"] = 0.5  # as many wrong as right: the field adds nothing
+    assert abs(bench.net_right(scores) - 0.8) < 1e-12
