@@ -63,7 +63,9 @@ def test_inference_settings_can_change_on_load_and_export(tmp_path):
     again = VLAGRPolicy.from_pretrained(out)
     assert again.dual_system.follower.config.lookahead == 0.8
     earlier = read_checkpoint(SHIPPED).state.get("export_overrides", [])
+    (out / "eval_results.md").write_text("measured")
     export_pretrained(out, out, ["navigator.confirm_ticks=3"])  # in place: the record grows
+    assert (out / "eval_results.md").read_text() == "measured"  # the folder's own file stays
     state = read_checkpoint(out).state
     assert state["export_overrides"] == [
         *earlier,

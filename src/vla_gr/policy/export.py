@@ -51,7 +51,8 @@ def write_checkpoint_folder(
 ) -> Path:
     """Write ``tensors`` and ``config_yaml`` as checkpoint folder ``dst`` (replaced once the
     new one is complete), with the training state of checkpoint ``loaded`` (without its RNG,
-    at its step) plus ``state_updates``; verified by loading the result."""
+    at its step) plus ``state_updates``; verified by loading the result. Files of an existing
+    ``dst`` that a checkpoint does not hold (its ``eval_results.md``) are carried over."""
     from vla_gr.policy.agent import VLAGRPolicy
 
     dst = Path(dst)
@@ -64,6 +65,9 @@ def write_checkpoint_folder(
         staging, int(loaded.state.get("step", 0)), tensors, state, config_yaml, links=()
     )
     if dst.exists():
+        for kept in sorted(dst.iterdir()):
+            if kept.is_file() and not (written / kept.name).exists():
+                shutil.copy2(kept, written / kept.name)
         shutil.rmtree(dst)
     os.replace(written, dst)
     shutil.rmtree(staging)
@@ -74,7 +78,9 @@ def write_checkpoint_folder(
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m vla_gr.policy.export", description=__doc__)
     parser.add_argument("src", help="a checkpoint folder, e.g. <run>/checkpoints/best")
-    parser.add_argument("dst", help="the folder to write (replaced if it exists)")
+    parser.add_argument(
+        "dst", help="the folder to write (replaced if it exists; files of its own are kept)"
+    )
     parser.add_argument("overrides", nargs="*", help="inference settings, e.g. navigator.x=1")
     args = parser.parse_args(argv)
     try:
