@@ -20,6 +20,7 @@ from vla_gr.evaluation.summary import (
     latency,
     overall,
     rejected_goal_counts,
+    reworded_instructions,
     without_timing,
     wrong_stop_counts,
 )
@@ -121,3 +122,28 @@ def test_rejected_goals_are_counted_by_reason_and_the_failures_they_preceded():
     assert list(counts["trap"]) == list(REJECTED_GOAL_KINDS) and counts["trap"]["goal"] == 1
     assert counts["episodes_failed_after_rejecting_the_goal"] == 1  # the success does not count
     assert rejected_goal_counts([{"cause": None}]) == {}
+
+
+def test_reworded_instructions_are_the_rows_s2_read_in_other_words():
+    def row(index, said, read_as, success):
+        agent = {} if read_as is None else {"read_as": read_as}
+        return {
+            "episode_index": index,
+            "spec": {"instruction": said},
+            "agent": agent,
+            "metrics": {"success": success},
+        }
+
+    rows = [
+        row(0, "find the sofa", "find the sofa", 1.0),  # template: read as said
+        row(1, "the couch, please", "find the sofa", 1.0),
+        row(2, "where is the telly?", "find the bed", 0.0),
+        row(3, "find the chair", None, 0.0),  # an agent without a lexicon
+    ]
+    out = reworded_instructions(rows)
+    assert out["episodes"] == 2 and out["success"] == 0.5
+    assert out["listed"] == [
+        {"episode": 1, "instruction": "the couch, please", "read_as": "find the sofa"},
+        {"episode": 2, "instruction": "where is the telly?", "read_as": "find the bed"},
+    ]
+    assert reworded_instructions(rows[:1] + rows[3:]) == {}

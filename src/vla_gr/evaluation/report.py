@@ -166,6 +166,20 @@ def write_report(out_dir: Path, metrics: dict, rows: Sequence[dict], pictures: d
             f"the instructed object, confidence < {LOW_GOAL_CONFIDENCE}): "
             + ", ".join(str(i) for i in low[:50]),
         ]
+    reworded = metrics.get("reworded_instructions") or {}
+    if reworded:
+        lines += [
+            "",
+            f"**Reworded instructions**: S2 read {reworded['episodes']} instruction(s) in "
+            f"template words (instruction lexicon; SR {reworded['success']:.3f} on them):",
+            "",
+            "| episode | instruction | read as |",
+            "|---|---|---|",
+        ]
+        lines += [
+            f"| {r['episode']} | {r['instruction']} | {r['read_as']} |"
+            for r in reworded["listed"][:10]
+        ]
     lines += ["", "## Latency per decision (ms, batch 1)", ""]
     if metrics["latency_ms"]:
         lines += [format_table(metrics["latency_ms"]), ""]

@@ -112,6 +112,33 @@ def low_confidence_episodes(rows: Sequence[dict]) -> list[int]:
     ]
 
 
+#: Reworded instructions listed in ``metrics.json`` (every row keeps its own ``read_as``).
+REWORDED_LISTED = 20
+
+
+def reworded_instructions(rows: Sequence[dict]) -> dict:
+    """Episodes whose instruction S2 read in other words (the agent's ``read_as``: the
+    instruction lexicon's template phrasing): how many, their success rate, and the first
+    ``REWORDED_LISTED`` as {episode, instruction, read_as}; {} when there are none."""
+    reworded = [
+        r for r in rows if r.get("agent", {}).get("read_as") not in (None, r["spec"]["instruction"])
+    ]
+    if not reworded:
+        return {}
+    return {
+        "episodes": len(reworded),
+        "success": float(np.mean([r["metrics"]["success"] for r in reworded])),
+        "listed": [
+            {
+                "episode": r["episode_index"],
+                "instruction": r["spec"]["instruction"],
+                "read_as": r["agent"]["read_as"],
+            }
+            for r in reworded[:REWORDED_LISTED]
+        ],
+    }
+
+
 def summarize_rows(
     rows: Sequence[dict],
     header: dict,
@@ -136,6 +163,7 @@ def summarize_rows(
         "wrong_stops": wrong_stop_counts(rows),
         "rejected_goals": rejected_goal_counts(rows),
         "low_goal_confidence": low_confidence_episodes(rows),
+        "reworded_instructions": reworded_instructions(rows),
         "parameters": rows[0]["parameters"],
         "latency_ms": latency(rows),
         "timing": {
