@@ -144,3 +144,9 @@ def test_minilm_maps_common_synonyms():
     assert lex.read("find the television").category == "tv_monitor"
     assert lex.read("search the house for the couch").category == "sofa"
     assert lex.read("go down the corridor to the cupboard").room == "hallway"
+
+
+def test_the_default_names_are_the_worlds():
+    config = InstructionLexiconConfig()
+    assert config.colors == list(COLORS)
+    assert config.categories == list(CATEGORIES) and config.room_types == list(ROOM_TYPES)

@@ -27,8 +27,12 @@ import torch.nn.functional as F
 from torch import nn
 
 from vla_gr.core.encoders.text import load_sentence_model
-from vla_gr.core.grounding.object_category import instructed_anchor, instructed_category
-from vla_gr.core.grounding.room_type import instructed_room
+from vla_gr.core.grounding.object_category import (
+    CATEGORIES,
+    instructed_anchor,
+    instructed_category,
+)
+from vla_gr.core.grounding.room_type import ROOM_TYPES, instructed_room
 
 __all__ = [
     "FIELDS",
@@ -57,16 +61,8 @@ class InstructionReaderConfig:
     max_length: int = 64  # tokens read per instruction
     # the fields it may fill (all three are trained; the others stay with the template words)
     fields: list[str] = field(default_factory=lambda: ["category", "anchor", "room"])
-    categories: list[str] = field(
-        default_factory=lambda: [
-            "chair", "sofa", "bed", "toilet", "tv_monitor", "plant", "table", "cabinet",
-        ]
-    )  # fmt: skip
-    room_types: list[str] = field(
-        default_factory=lambda: [
-            "kitchen", "living_room", "bedroom", "bathroom", "office", "hallway",
-        ]
-    )  # fmt: skip
+    categories: list[str] = field(default_factory=lambda: list(CATEGORIES))
+    room_types: list[str] = field(default_factory=lambda: list(ROOM_TYPES))
 
     def __post_init__(self) -> None:
         if not 0.0 < self.min_confidence <= 1.0:

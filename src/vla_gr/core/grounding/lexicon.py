@@ -35,11 +35,12 @@ import torch.nn.functional as F
 
 from vla_gr.core.encoders.text import load_sentence_model
 from vla_gr.core.grounding.object_category import (
+    CATEGORIES,
     instructed_anchor,
     instructed_category,
     spoken_name,
 )
-from vla_gr.core.grounding.room_type import instructed_room
+from vla_gr.core.grounding.room_type import ROOM_TYPES, instructed_room
 
 __all__ = ["InstructionLexicon", "InstructionLexiconConfig", "LexiconReading"]
 
@@ -63,16 +64,8 @@ class InstructionLexiconConfig:
             "red", "blue", "green", "yellow", "white", "black", "orange", "purple",
         ]
     )  # fmt: skip
-    categories: list[str] = field(
-        default_factory=lambda: [
-            "chair", "sofa", "bed", "toilet", "tv_monitor", "plant", "table", "cabinet",
-        ]
-    )  # fmt: skip
-    room_types: list[str] = field(
-        default_factory=lambda: [
-            "kitchen", "living_room", "bedroom", "bathroom", "office", "hallway",
-        ]
-    )  # fmt: skip
+    categories: list[str] = field(default_factory=lambda: list(CATEGORIES))
+    room_types: list[str] = field(default_factory=lambda: list(ROOM_TYPES))
 
     def __post_init__(self) -> None:
         if not -1.0 <= self.room_threshold <= 1.0:

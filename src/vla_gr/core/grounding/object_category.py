@@ -45,16 +45,18 @@ __all__ = [
 ]
 
 
+#: The world's object categories, in the order of the segmenter's classes (after background).
+CATEGORIES: tuple[str, ...] = (
+    "chair", "sofa", "bed", "toilet", "tv_monitor", "plant", "table", "cabinet",
+)  # fmt: skip
+
+
 @dataclass
 class ObjectCategoryConfig:
     """The object-category segmenter (``model.object_category.*``); weights in the checkpoint."""
 
     enabled: bool = False  # build it (S2 uses it with navigator.object_reject_threshold)
-    categories: list[str] = field(
-        default_factory=lambda: [
-            "chair", "sofa", "bed", "toilet", "tv_monitor", "plant", "table", "cabinet",
-        ]
-    )  # fmt: skip
+    categories: list[str] = field(default_factory=lambda: list(CATEGORIES))
     channels: list[int] = field(default_factory=lambda: [16, 32, 64])  # stride-2 stages
     max_depth: float = MAX_DEPTH  # metres; depth is clipped and scaled to [-1, 1]
     min_goal_pixels: int = 4  # fewer goal pixels in a frame give no evidence

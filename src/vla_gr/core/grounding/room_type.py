@@ -32,16 +32,18 @@ from vla_gr.validation import check_positive
 __all__ = ["RoomTypeClassifier", "RoomTypeConfig", "instructed_room"]
 
 
+#: The world's room types, in the order of the classifier's classes.
+ROOM_TYPES: tuple[str, ...] = (
+    "kitchen", "living_room", "bedroom", "bathroom", "office", "hallway",
+)  # fmt: skip
+
+
 @dataclass
 class RoomTypeConfig:
     """The room-type classifier (``model.room_type.*``); its weights are in the checkpoint."""
 
     enabled: bool = False  # build the classifier (S2 uses it with navigator.room_reject_threshold)
-    room_types: list[str] = field(
-        default_factory=lambda: [
-            "kitchen", "living_room", "bedroom", "bathroom", "office", "hallway",
-        ]
-    )  # fmt: skip
+    room_types: list[str] = field(default_factory=lambda: list(ROOM_TYPES))
     input_size: int = 32  # frames are area-averaged to this side first (room cues are coarse)
     channels: list[int] = field(default_factory=lambda: [16, 32, 64])  # stride-2 stages
     max_depth: float = MAX_DEPTH  # metres; depth is clipped and scaled to [-1, 1]
