@@ -125,6 +125,8 @@ class InstructionLexicon:
 
     def _room_of(self, words: list[str], i: int) -> tuple[str | None, int]:
         """(room type named by the noun at ``words[i]`` or its two-word phrase, words used)."""
+        if words[i] in self._category_names:
+            return None, 1  # a category's own name is no room
         for span in (2, 1):
             phrase = " ".join(words[i : i + span])
             if span == 2 and i + 1 >= len(words):
