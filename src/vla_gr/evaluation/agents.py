@@ -155,6 +155,13 @@ def module_parameters(module: nn.Module) -> dict[str, int]:
     return parts
 
 
+def _with_reading(summary: dict, policy) -> dict:
+    """``summary`` plus the instruction as S2 read it (``read_as``) when ``policy`` has an
+    instruction lexicon."""
+    read_as = getattr(policy, "read_as", None)
+    return summary | ({"read_as": read_as} if read_as is not None else {})
+
+
 class PolicyAgent:
     """Any object with ``reset()`` and ``select_action(obs) -> (1, A)`` (a ``VLAGRPolicy``).
 
@@ -182,9 +189,7 @@ class PolicyAgent:
         """The dual system's goal confidence and last mode, and with an instruction lexicon
         the instruction as S2 read it (``read_as``); {} for an end-to-end policy."""
         system = getattr(self.policy, "dual_system", None)
-        summary = system.episode_summary() if system is not None else {}
-        read_as = getattr(self.policy, "read_as", None)
-        return summary | ({"read_as": read_as} if read_as is not None else {})
+        return _with_reading(system.episode_summary() if system is not None else {}, self.policy)
 
     def parameters(self) -> dict[str, int]:
         return module_parameters(self.policy) if isinstance(self.policy, nn.Module) else {}
@@ -257,7 +262,8 @@ class TrueCategoryAgent(TrueMaskAgent):
     the instructed instance among same-category ones, but never fires on another category.
     Between ``checkpoint`` and ``true_mask`` it tells how much of the gap is category
     recognition. Needs a dual-system ``eval.checkpoint`` (with ``eval.model_overrides``); its
-    room and object checks, if it has them, run as in the checkpoint's agent.
+    room and object checks and its instruction lexicon, if it has them, run as in the
+    checkpoint's agent.
     """
 
     name = "true_category"
@@ -284,6 +290,16 @@ class TrueCategoryAgent(TrueMaskAgent):
         mask = np.isin(self._semantic(obs), same)  # (H, W)
         pixels, visible = self.policy.goal_likelihood(obs)  # (H, W), probability
         return pixels * mask, visible
+
+    def reset(self, seed: int | None = None) -> None:
+        self.policy.reset()
+        super().reset(seed)
+
+    def act(self, obs) -> np.ndarray:
+        return self.system.step(self.policy.as_s2_reads(obs))  # (3,)
+
+    def episode_summary(self) -> dict:
+        return _with_reading(self.system.episode_summary(), self.policy)
 
     def parameters(self) -> dict[str, int]:
         return module_parameters(self.policy)

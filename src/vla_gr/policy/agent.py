@@ -398,14 +398,19 @@ class VLAGRPolicy(nn.Module):
             None if anchor is None else probs[anchor],
         )
 
-    def _dual_system_step(self, obs: Mapping) -> torch.Tensor:
-        """One control step of the dual system (S2 every ``plan_every`` steps, S1 every step;
-        see :mod:`vla_gr.policy.dual_system`) -> action (1, A)."""
-        obs = _single_observation(obs)
+    def as_s2_reads(self, obs: Mapping) -> dict:
+        """One observation with its instruction as S2 reads it: in template words when the
+        agent has an instruction lexicon (kept in ``read_as``), else as said."""
+        obs = dict(obs)
         if self.instruction_lexicon is not None:
             said = as_instructions(obs["instruction"], "obs['instruction']")[0]
             obs["instruction"] = self.read_as = self.instruction_lexicon.canonical(said)
-        action = self.dual_system.step(obs)  # (A,)
+        return obs
+
+    def _dual_system_step(self, obs: Mapping) -> torch.Tensor:
+        """One control step of the dual system (S2 every ``plan_every`` steps, S1 every step;
+        see :mod:`vla_gr.policy.dual_system`) -> action (1, A)."""
+        action = self.dual_system.step(self.as_s2_reads(_single_observation(obs)))  # (A,)
         self.last_timings = self.dual_system.last_timings
         return torch.from_numpy(action).to(self.action_scale.device)[None]  # (1, A)
 
