@@ -62,6 +62,21 @@ def test_template_labels_are_what_the_world_parses_from_the_text():
         assert 0 < (corpus[name] > 0).mean() < 1, name
 
 
+def test_labels_follow_the_given_class_lists():
+    full = reader_corpus(300, 0, "template")
+    categories, rooms = ["plant", "chair"], ["bedroom", "kitchen"]
+    part = reader_corpus(300, 0, "template", categories=categories, room_types=rooms)
+    assert part["instructions"] == full["instructions"]  # the same draws, relabelled
+    for i, text in enumerate(part["instructions"]):
+        parsed = parse_instruction(text)
+        expected = tuple(
+            names.index(parsed[key]) + 1 if parsed[key] in names else 0
+            for key, names in (("category", categories), ("near", categories), ("room", rooms))
+        )
+        assert tuple(int(part[n][i]) for n in FIELDS) == expected, text
+    assert (part["category"] == 0).any() and (part["category"] == 2).any()
+
+
 @pytest.mark.parametrize("vocabulary", ["held_out", "validation"])
 def test_unseen_vocabularies_use_none_of_the_training_words(vocabulary):
     corpus = reader_corpus(300, 1, vocabulary)

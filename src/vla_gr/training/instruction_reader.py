@@ -60,8 +60,11 @@ def reader_corpus(
     vocabulary: str = "training",
     template_share: float = 0.4,
     unknown_share: float = 0.1,
+    categories: Sequence[str] | None = None,
+    room_types: Sequence[str] | None = None,
 ) -> dict:
-    """``count`` instructions with labels in the default category / room-type order.
+    """``count`` instructions with labels in the order of ``categories`` / ``room_types``
+    (default: the world's); a category or room outside those lists is labelled "not named".
 
     ``vocabulary`` "training" mixes template phrasings (``template_share``), training
     paraphrases and instructions about unknown objects (``unknown_share``); "validation" and
@@ -78,14 +81,19 @@ def reader_corpus(
     if vocabulary not in choices:
         raise UserError(f"vocabulary={vocabulary!r} is not one of {list(choices)}")
     config = InstructionReaderConfig()
-    categories, rooms = list(config.categories), list(config.room_types)
+    categories = list(config.categories if categories is None else categories)
+    rooms = list(config.room_types if room_types is None else room_types)
+
+    def label(name: str | None, names: list[str]) -> int:
+        return names.index(name) + 1 if name in names else 0
+
     rng = np.random.default_rng(seed)
     texts: list[str] = []
     labels: dict[str, list[int]] = {"category": [], "anchor": [], "room": []}
     for _ in range(count):
         desc = _description(rng)
         text = render_instruction(desc, rng)
-        category = categories.index(desc.category) + 1
+        category = label(desc.category, categories)
         draw = rng.random()
         if vocabulary in ("validation", "held_out"):
             text = paraphrase(text, rng, VALIDATION if vocabulary == "validation" else HELD_OUT)
@@ -98,8 +106,8 @@ def reader_corpus(
             text = paraphrase(text, rng, TRAINING)
         texts.append(text)
         labels["category"].append(category)
-        labels["anchor"].append(0 if desc.near is None else categories.index(desc.near) + 1)
-        labels["room"].append(0 if desc.room is None else rooms.index(desc.room) + 1)
+        labels["anchor"].append(label(desc.near, categories))
+        labels["room"].append(label(desc.room, rooms))
     return {"instructions": texts, **{k: np.asarray(v, np.int64) for k, v in labels.items()}}
 
 
@@ -204,21 +212,24 @@ def train_instruction_reader(
     )  # fmt: skip
     reader = policy.instruction_reader
     policy.requires_grad_(False)
-    losses = fit_reader(
-        reader, reader_corpus(count, seed), steps, batch_size, lr, seed, token_dropout
-    )
+    classes = {"categories": reader.config.categories, "room_types": reader.config.room_types}
+
+    def corpus(n: int, corpus_seed: int, vocabulary: str = "training") -> dict:
+        return reader_corpus(n, corpus_seed, vocabulary, **classes)
+
+    losses = fit_reader(reader, corpus(count, seed), steps, batch_size, lr, seed, token_dropout)
     summary = {
         "corpus": count,
         "steps": steps,
         "token_dropout": token_dropout,
         "final_loss": round(float(np.mean(losses[-100:])), 5),
-        "training_vocabulary": reader_accuracy(reader, reader_corpus(eval_count, seed + 1)),
-        "templates": reader_accuracy(reader, reader_corpus(eval_count, seed + 2, "template")),
+        "training_vocabulary": reader_accuracy(reader, corpus(eval_count, seed + 1)),
+        "templates": reader_accuracy(reader, corpus(eval_count, seed + 2, "template")),
         "validation_vocabulary": reader_accuracy(
-            reader, reader_corpus(eval_count, seed + 4, "validation")
+            reader, corpus(eval_count, seed + 4, "validation")
         ),
     }
-    held_out = reader_corpus(eval_count, seed + 3, "held_out")
+    held_out = corpus(eval_count, seed + 3, "held_out")
     return finish_part(
         policy, loaded, config, out, "instruction_reader", summary,
         lambda corpus: reader_accuracy(reader, corpus), held_out,
