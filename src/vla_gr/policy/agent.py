@@ -398,14 +398,14 @@ class VLAGRPolicy(nn.Module):
             None if anchor is None else probs[anchor],
         )
 
-    def as_s2_reads(self, obs: Mapping) -> dict:
+    def as_s2_reads(self, obs: Mapping) -> Mapping:
         """One observation with its instruction as S2 reads it: in template words when the
-        agent has an instruction lexicon (kept in ``read_as``), else as said."""
-        obs = dict(obs)
-        if self.instruction_lexicon is not None:
-            said = as_instructions(obs["instruction"], "obs['instruction']")[0]
-            obs["instruction"] = self.read_as = self.instruction_lexicon.canonical(said)
-        return obs
+        agent has an instruction lexicon (a copy; kept in ``read_as``), else ``obs`` itself."""
+        if self.instruction_lexicon is None:
+            return obs
+        said = as_instructions(obs["instruction"], "obs['instruction']")[0]
+        self.read_as = self.instruction_lexicon.canonical(said)
+        return {**obs, "instruction": self.read_as}
 
     def _dual_system_step(self, obs: Mapping) -> torch.Tensor:
         """One control step of the dual system (S2 every ``plan_every`` steps, S1 every step;

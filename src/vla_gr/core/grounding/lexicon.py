@@ -34,13 +34,9 @@ import torch
 import torch.nn.functional as F
 
 from vla_gr.core.encoders.text import load_sentence_model
-from vla_gr.core.grounding.object_category import (
-    CATEGORIES,
-    instructed_anchor,
-    instructed_category,
-    spoken_name,
-)
-from vla_gr.core.grounding.room_type import ROOM_TYPES, instructed_room
+from vla_gr.core.grounding.instruction_reader import read_instruction
+from vla_gr.core.grounding.object_category import CATEGORIES, spoken_name
+from vla_gr.core.grounding.room_type import ROOM_TYPES, spoken_room_name
 
 __all__ = ["InstructionLexicon", "InstructionLexiconConfig", "LexiconReading"]
 
@@ -107,7 +103,7 @@ class InstructionLexicon:
         self.config = c = config or InstructionLexiconConfig()
         self._encoder = encoder if encoder is not None else load_sentence_model(model_path)
         self._category_names = [spoken_name(k) for k in c.categories]
-        self._room_names = [r.replace("_", " ") for r in c.room_types]
+        self._room_names = [spoken_room_name(r) for r in c.room_types]
         self._categories = self._embed(self._category_names)  # (K, E)
         self._rooms = self._embed(self._room_names)  # (R, E)
         self._words: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}
@@ -129,9 +125,7 @@ class InstructionLexicon:
             return None, 1  # a category's own name is no room
         for span in (2, 1):
             phrase = " ".join(words[i : i + span])
-            if span == 2 and i + 1 >= len(words):
-                continue
-            if phrase in self._room_names:
+            if i + span <= len(words) and phrase in self._room_names:
                 return self.config.room_types[self._room_names.index(phrase)], span
         best: tuple[float, int, int] = (-2.0, 0, 1)  # (similarity, room index, span)
         for span in (1, 2):
@@ -200,7 +194,7 @@ class InstructionLexicon:
         goal = reading.goal_word if reading.category is None else spoken_name(reading.category)
         words = ["find the"] + ([reading.color] if reading.color else []) + [goal]
         if reading.room is not None:
-            words.append(f"in the {reading.room.replace('_', ' ')}")
+            words.append(f"in the {spoken_room_name(reading.room)}")
         if reading.anchor_word is not None:
             anchor = reading.anchor_word if reading.anchor is None else spoken_name(reading.anchor)
             words.append(f"next to the {anchor}")
@@ -208,23 +202,18 @@ class InstructionLexicon:
 
     def canonical(self, instruction: str) -> str:
         """``instruction`` in template words; unchanged when the template readers
-        (:func:`instructed_category`, :func:`instructed_anchor`, :func:`instructed_room`)
-        already find in it what the lexicon reads, or when it has no goal noun."""
+        (:func:`~vla_gr.core.grounding.read_instruction` without a learned reader) already
+        find in it what the lexicon reads, or when it has no goal noun."""
         if instruction not in self._canonical:
             reading = self.read(instruction)
             rendered = self.render(reading)
-            if rendered is None or self._template_reads(instruction) == self._indices(reading):
+            template = read_instruction(instruction, self.config.categories, self.config.room_types)
+            if rendered is None or (
+                (template.category, template.anchor, template.room) == self._indices(reading)
+            ):
                 rendered = instruction
             self._canonical[instruction] = rendered
         return self._canonical[instruction]
-
-    def _template_reads(self, instruction: str) -> tuple[int | None, ...]:
-        c = self.config
-        return (
-            instructed_category(instruction, c.categories),
-            instructed_anchor(instruction, c.categories),
-            instructed_room(instruction, c.room_types),
-        )
 
     def _indices(self, reading: LexiconReading) -> tuple[int | None, ...]:
         """``reading`` as the template readers index it (categories 1-based, rooms 0-based)."""

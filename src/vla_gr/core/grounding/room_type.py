@@ -29,7 +29,7 @@ from vla_gr.core.grounding.goal_head import norm_groups, rgbd_inputs
 from vla_gr.geometry.robot_spec import MAX_DEPTH
 from vla_gr.validation import check_positive
 
-__all__ = ["RoomTypeClassifier", "RoomTypeConfig", "instructed_room"]
+__all__ = ["RoomTypeClassifier", "RoomTypeConfig", "instructed_room", "spoken_room_name"]
 
 
 #: The world's room types, in the order of the classifier's classes.
@@ -96,9 +96,14 @@ class RoomTypeClassifier(nn.Module):
         return F.softmax(self(rgb, depth).float(), dim=-1)  # (B, R)
 
 
+def spoken_room_name(room_type: str) -> str:
+    """How instructions say a room type: 'living_room' -> 'living room'."""
+    return room_type.replace("_", " ")
+
+
 @lru_cache(maxsize=64)
 def _room_pattern(room_types: tuple[str, ...]) -> re.Pattern:
-    names = sorted((r.replace("_", " ") for r in room_types), key=len, reverse=True)
+    names = sorted(map(spoken_room_name, room_types), key=len, reverse=True)
     return re.compile(r"\bin the (" + "|".join(map(re.escape, names)) + r")\b", re.IGNORECASE)
 
 
@@ -110,5 +115,4 @@ def instructed_room(instruction: str, room_types: tuple[str, ...] | list[str]) -
     found = _room_pattern(tuple(room_types)).search(instruction)
     if found is None:
         return None
-    spoken = [r.replace("_", " ") for r in room_types]
-    return spoken.index(found.group(1).lower())
+    return [spoken_room_name(r) for r in room_types].index(found.group(1).lower())
