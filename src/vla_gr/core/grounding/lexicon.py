@@ -37,6 +37,7 @@ from vla_gr.core.encoders.text import load_sentence_model
 from vla_gr.core.grounding.instruction_reader import read_instruction
 from vla_gr.core.grounding.object_category import CATEGORIES, spoken_name
 from vla_gr.core.grounding.room_type import ROOM_TYPES, spoken_room_name
+from vla_gr.core.grounding.word_senses import WordSenses
 
 __all__ = ["InstructionLexicon", "InstructionLexiconConfig", "LexiconReading"]
 
@@ -53,6 +54,8 @@ class InstructionLexiconConfig:
     """
 
     enabled: bool = False  # say non-template instructions in template words before S2 reads them
+    # look nouns up in WordNet first (what a word is a kind of); the encoder for the rest
+    word_senses: bool = False
     room_threshold: float = 0.6  # cosine similarity at which a noun can name a room type
     category_margin: float = 0.05  # lead of the nearest category over the next one to name it
     colors: list[str] = field(
@@ -107,6 +110,7 @@ class InstructionLexicon:
         self._categories = self._embed(self._category_names)  # (K, E)
         self._rooms = self._embed(self._room_names)  # (R, E)
         self._words: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}
+        self._senses = WordSenses(self._category_names, self._room_names) if c.word_senses else None
         self._canonical: dict[str, str] = {}
 
     def _embed(self, texts: Sequence[str]) -> torch.Tensor:
@@ -150,6 +154,31 @@ class InstructionLexicon:
             return None
         return self.config.categories[int(top.indices[0])]
 
+    def _role(self, words: list[str], i: int) -> tuple[str, str | None, int]:
+        """(kind, name, words used) of the noun at ``words[i]``: kind "room" / "category"
+        (name from the config, or None for a noun kept as said) / "skip" (a place of no known
+        type, or no physical thing: neither goal, anchor nor room)."""
+        c = self.config
+        if self._senses is not None:
+            for span in (2, 1):
+                if i + span > len(words):
+                    continue
+                role = self._senses.role(" ".join(words[i : i + span]))
+                if role is None or (span == 2 and role[0] not in ("room", "place")):
+                    continue
+                kind, index = role
+                if kind == "room":
+                    return "room", c.room_types[index], span
+                if kind == "category":
+                    return "category", c.categories[index], span
+                if kind == "object":  # some other thing: the encoder may still know it
+                    return "category", self._category_of(words[i]), span
+                return "skip", None, span
+        named_room, used = self._room_of(words, i)
+        if named_room is not None:
+            return "room", named_room, used
+        return "category", self._category_of(words[i]), used
+
     def read(self, instruction: str) -> LexiconReading:
         """The goal noun, its colour, room and relation anchor as the config names them."""
         if not isinstance(instruction, str):
@@ -168,11 +197,11 @@ class InstructionLexicon:
                 i += 1
             if i >= len(words):
                 break
-            named_room, used = self._room_of(words, i)
-            if named_room is not None and room is None:
-                room, room_word = named_room, " ".join(words[i : i + used])
-            elif named_room is None and len(nouns) < 2:
-                nouns.append((words[i], self._category_of(words[i])))
+            kind, name, used = self._role(words, i)
+            if kind == "room" and room is None:
+                room, room_word = name, " ".join(words[i : i + used])
+            elif kind == "category" and len(nouns) < 2:
+                nouns.append((words[i], name))
             i += used
         goal = nouns[0] if nouns else (None, None)
         anchor = nouns[1] if len(nouns) > 1 else (None, None)

