@@ -16,9 +16,13 @@ is the first word after an article (the, a, an) that is not a colour word. Nouns
 order: a room type when the word is at least ``room_threshold`` similar to a room name and
 nearer to it than to any category, otherwise the goal (the first) or a relation's anchor
 (the second) when the nearest category leads the runner-up by ``category_margin``; a noun
-that does not is kept as it was said. An instruction in which the template readers already
-find what the lexicon reads comes out unchanged, so template instructions reach the agent
-exactly as before.
+that does not is kept as it was said. With ``word_senses`` a noun is first looked up in
+WordNet (:class:`~vla_gr.core.grounding.word_senses.WordSenses`): what its most common physical
+sense is a kind of names its category or room type, a place of no known type ("the house")
+and a word for no physical thing ("a step from") are neither goal, anchor nor room, and only
+a word WordNet lacks, or knows as some other object, goes to the encoder. An instruction in
+which the template readers already find what the lexicon reads comes out unchanged, so
+template instructions reach the agent exactly as before.
 
 ``model.instruction_lexicon`` has no weights: its settings are inference settings
 (``python -m vla_gr.policy.export``), chosen on the validation paraphrase vocabulary.

@@ -19,8 +19,8 @@ copy of the data, so it works offline) and reads its *most common physical sense
   the goal, an anchor nor a room;
 - ``None``: WordNet does not know the word (the caller falls back on the encoder).
 
-The names themselves map to their own class without a lookup, so template instructions never
-load WordNet (about 5 s, once per process).
+The names themselves map to their own class without a lookup; WordNet (about 5 s to load,
+once per process) loads at the first other noun, or at :meth:`WordSenses.load`.
 """
 
 from __future__ import annotations
@@ -79,6 +79,13 @@ class WordSenses:
         self._thing = thing
         return {synset: role for synset, (_, role) in best.items()}
 
+    def load(self) -> WordSenses:
+        """Load WordNet now rather than at the first unknown noun (about 5 s, once per
+        process), so that no control step waits for it."""
+        if self._classes is None:
+            self._classes = self._build()
+        return self
+
     def role(self, word: str) -> Role | None:
         """What ``word`` (a noun, or a two-word phrase like "sitting room") names; see the
         module docstring."""
@@ -89,8 +96,7 @@ class WordSenses:
         return self._cache[word]
 
     def _look_up(self, word: str) -> Role | None:
-        if self._classes is None:
-            self._classes = self._build()
+        self.load()
         senses = _wordnet().synsets(word.replace(" ", "_"), "n")
         if not senses:
             return None
