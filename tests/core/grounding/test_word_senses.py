@@ -51,6 +51,7 @@ def test_the_lexicon_reads_senses_first_and_the_encoder_for_the_rest():
     words = {"flatscreen": [0.0, 0.0, 0.0, 0.0, 1.0] + [0.0] * 10}  # at the tv axis
     config = InstructionLexiconConfig(enabled=True, word_senses=True)
     lex = InstructionLexicon(config, encoder=HandMadeEncoder(words))
+    assert lex._senses._classes is not None  # WordNet loaded with the lexicon, not mid-episode
     reading = lex.read("enter the sitting room; approach the white divan a step from the shrub")
     assert (reading.category, reading.color, reading.room, reading.anchor) == (
         "sofa", "white", "living_room", "plant",

@@ -114,7 +114,9 @@ class InstructionLexicon:
         self._categories = self._embed(self._category_names)  # (K, E)
         self._rooms = self._embed(self._room_names)  # (R, E)
         self._words: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}
-        self._senses = WordSenses(self._category_names, self._room_names) if c.word_senses else None
+        self._senses = None  # loaded now, so that no control step waits for WordNet
+        if c.word_senses:
+            self._senses = WordSenses(self._category_names, self._room_names).load()
         self._canonical: dict[str, str] = {}
 
     def _embed(self, texts: Sequence[str]) -> torch.Tensor:
