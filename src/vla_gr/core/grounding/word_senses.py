@@ -100,11 +100,12 @@ class WordSenses:
         senses = _wordnet().synsets(word.replace(" ", "_"), "n")
         if not senses:
             return None
-        if self._thing not in _ancestors(senses[0]):
+        paths = senses[0].hypernym_paths()  # the most common sense's, each from the root
+        ancestors = {senses[0]}.union(*paths)
+        if self._thing not in ancestors:
             return ("abstract", None)
-        sense = senses[0]
-        for path in sense.hypernym_paths():  # the nearest named ancestor on each path
+        for path in paths:  # the nearest named ancestor, path by path
             for synset in reversed(path):
                 if synset in self._classes:
                     return self._classes[synset]
-        return ("place", None) if self._places & _ancestors(sense) else ("object", None)
+        return ("place", None) if self._places & ancestors else ("object", None)
