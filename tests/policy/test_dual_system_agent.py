@@ -411,3 +411,38 @@ def test_the_instruction_lexicon_rewrites_what_s2_reads_and_the_summary_says_it(
     assert plain.instruction_lexicon is None
     plain.select_action({**_obs(), "instruction": said})
     assert "read_as" not in PolicyAgent(plain).episode_summary()
+
+
+def test_relation_candidates_add_the_instructed_categorys_pixels_once_per_frame():
+    model = _model("model.object_category.enabled=true")
+    segmenter = model.object_category
+    plant = 1 + model.config.object_category.categories.index("plant")
+    with torch.no_grad():  # the segmenter sees a plant at every pixel
+        segmenter.logits.weight.zero_()
+        segmenter.logits.bias.fill_(-20.0)
+        segmenter.logits.bias[plant] = 20.0
+    calls = []
+    segmenter.register_forward_hook(lambda *args: calls.append(1))
+
+    def said(text: str) -> dict:
+        return {**_obs(), "instruction": text}
+
+    texts = (
+        "find the plant near the sofa",  # a relation without a colour: candidates
+        "find the green plant near the sofa?",  # a colour: the goal head alone
+        "find the plant",  # no relation: the goal head alone
+        "find the chair near the sofa",  # candidates are chair pixels: there are none
+    )
+    head = {t: model.goal_likelihood(said(t))[0] for t in texts}
+    assert calls == [] and max(float(h.max()) for h in head.values()) < 0.99  # off by default
+    model.config.object_category.relation_candidates = True
+    relation = said(texts[0])
+    np.testing.assert_allclose(model.goal_likelihood(relation)[0], 1.0, atol=1e-6)
+    assert len(calls) == 1
+    model.object_evidence(relation, np.ones((32, 32), np.float32))  # the same frame: no pass
+    assert len(calls) == 1
+    changed = {**relation, "rgb": relation["rgb"] + 1}  # another frame: a new pass
+    model.object_evidence(changed, np.ones((32, 32), np.float32))
+    assert len(calls) == 2
+    for text in texts[1:]:
+        np.testing.assert_allclose(model.goal_likelihood(said(text))[0], head[text], atol=1e-6)

@@ -25,6 +25,7 @@ inference (S2 on the GR field, S1) is ``_dual_system_step``.
 
 from __future__ import annotations
 
+import re
 from collections import deque
 from collections.abc import Mapping, Sequence
 
@@ -61,7 +62,8 @@ __all__ = ["VLAGRPolicy"]
 _OBS_KEYS = ("rgb", "depth", "pose")
 #: Model settings a loaded checkpoint may change (no weight depends on them): the planner,
 #: its GR field, which S1 drives and how it samples, the follower, the S2 schedule and
-#: the goal head's inference options (category gate, test-time flip).
+#: the goal head's inference options (category gate, test-time flip) and the segmenter's
+#: relation candidates.
 INFERENCE_SETTINGS = (
     "navigator.",
     "pursuit.",
@@ -70,6 +72,7 @@ INFERENCE_SETTINGS = (
     "dual_system.planning_frequency_hz",
     "goal_head.category_gate",
     "goal_head.test_time_flip",
+    "object_category.relation_candidates",
     "s1.kind",
     "s1.use_s2",
     "s1.stop_threshold",
@@ -322,6 +325,7 @@ class VLAGRPolicy(nn.Module):
         self.instruction_lexicon = (
             InstructionLexicon(c.instruction_lexicon) if c.instruction_lexicon.enabled else None
         )
+        self._segmented: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self.s1 = S1Policy(c.s1)
         self.dual_system = GroundedDualSystem.from_model_config(
             self.goal_likelihood,
@@ -348,7 +352,42 @@ class VLAGRPolicy(nn.Module):
             frame["rgb"], frame["depth"], frame["instruction"]
         )  # (1, H, W), (1,)
         self.last_goal_visible = float(visible[0])
-        return pixels[0].float().cpu().numpy(), self.last_goal_visible  # (H, W), p
+        likelihood = pixels[0].float().cpu().numpy()  # (H, W)
+        candidate = self._relation_candidate(obs)
+        if candidate is not None:  # the instructed category's pixels are candidates too
+            likelihood = np.maximum(likelihood, self._segment(obs)[candidate])  # (H, W)
+        return likelihood, self.last_goal_visible
+
+    def _relation_candidate(self, obs: Mapping) -> int | None:
+        """The segmenter class whose pixels are goal candidates (``relation_candidates``: an
+        instruction naming a category and a relation's anchor but no colour), else None."""
+        if self.object_category is None or not self.config.object_category.relation_candidates:
+            return None
+        instruction = as_instructions(obs["instruction"], "obs['instruction']")[0]
+        reading = self.read_instruction(instruction)
+        if reading.category is None or reading.anchor is None:
+            return None
+        if set(re.findall(r"[a-z]+", instruction.lower())) & set(
+            self.config.instruction_lexicon.colors
+        ):
+            return None
+        return reading.category
+
+    def _segment(self, obs: Mapping) -> np.ndarray:
+        """The segmenter's probabilities (1 + K, H, W) of this observation's frame, computed
+        once per frame (the goal likelihood and the object checks both read them)."""
+        rgb, depth = np.asarray(obs["rgb"]), np.asarray(obs["depth"])
+        cached = self._segmented  # (rgb, depth, probabilities) of the last frame segmented
+        if (
+            cached is not None
+            and np.array_equal(cached[0], rgb)
+            and np.array_equal(cached[1], depth)
+        ):
+            return cached[2]
+        frame = env_obs_to_frame(obs, device=self.action_scale.device)
+        probs = self.object_category.probabilities(frame["rgb"], frame["depth"])[0]
+        self._segmented = (rgb.copy(), depth.copy(), probs.cpu().numpy())  # (1 + K, H, W)
+        return self._segmented[2]
 
     def read_instruction(self, instruction: str) -> Reading:
         """What the checks take ``instruction`` to name (:func:`read_instruction`: template
@@ -390,9 +429,7 @@ class VLAGRPolicy(nn.Module):
             index = None
         if index is None and anchor is None:
             return ObjectEvidence()
-        frame = env_obs_to_frame(obs, device=self.action_scale.device)
-        probs = self.object_category.probabilities(frame["rgb"], frame["depth"])[0]
-        probs = probs.cpu().numpy()  # (1 + K, H, W)
+        probs = self._segment(obs)  # (1 + K, H, W)
         return ObjectEvidence(
             None if index is None else category_match(probs, goal, index, c.min_goal_pixels),
             None if anchor is None else probs[anchor],

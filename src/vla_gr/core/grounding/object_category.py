@@ -60,6 +60,10 @@ class ObjectCategoryConfig:
     channels: list[int] = field(default_factory=lambda: [16, 32, 64])  # stride-2 stages
     max_depth: float = MAX_DEPTH  # metres; depth is clipped and scaled to [-1, 1]
     min_goal_pixels: int = 4  # fewer goal pixels in a frame give no evidence
+    # a relation without a colour ("the chair near the plant"): every pixel of the instructed
+    # category is a goal candidate too (the goal likelihood is the larger of the goal head's
+    # and the segmenter's), and the navigator's relation check picks among them
+    relation_candidates: bool = False
 
     def __post_init__(self) -> None:
         if not self.categories or len(set(self.categories)) != len(self.categories):
