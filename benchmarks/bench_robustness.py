@@ -10,7 +10,8 @@ Runs ``vla-gr eval`` (the ``config_cpu`` recipe) once per condition on episodes
 - ``paraphrase``: the same episodes with instructions rewritten by
   :func:`vla_gr.envs.paraphrase.paraphrase_episodes` (synonyms and sentence shapes the
   templates never use): in the held-out vocabulary, or with ``--vocabulary validation`` in
-  the one for choosing settings (its results file gets a ``_validation`` suffix);
+  the one for choosing settings, or ``second_held_out`` (the results file gets a
+  ``_<vocabulary>`` suffix for any but ``held_out``);
 - ``depth_noise``: ``env.depth_noise_std=0.02`` (Gaussian, metres, per pixel);
 - ``actuation_noise``: ``env.actuation_noise=0.1`` (+-10% on v and w, per step).
 
@@ -48,8 +49,8 @@ def run_condition(name: str, args, episodes_file: Path | None) -> dict:
     from vla_gr.configs import load_config
     from vla_gr.evaluate import evaluate, expand_aliases
 
-    validation = name == "paraphrase" and args.vocabulary == "validation"
-    out = Path(args.output) / (f"{args.split}-{name}" + ("-validation" if validation else ""))
+    other = name == "paraphrase" and args.vocabulary != "held_out"
+    out = Path(args.output) / (f"{args.split}-{name}" + (f"-{args.vocabulary}" if other else ""))
     overrides = [
         f"agent={args.agent}",
         f"workers={args.workers}",
@@ -73,12 +74,10 @@ def run_condition(name: str, args, episodes_file: Path | None) -> dict:
 def paraphrased_episodes(args) -> Path:
     """Write the split's episodes with paraphrased instructions; the file's path."""
     from vla_gr.envs.episodes import sample_episode, save_episodes
-    from vla_gr.envs.paraphrase import paraphrase_episodes
+    from vla_gr.envs.paraphrase import VOCABULARIES, paraphrase_episodes
 
     specs = [sample_episode(args.split, k) for k in range(args.first, args.first + args.episodes)]
-    from vla_gr.envs.paraphrase import HELD_OUT, VALIDATION
-
-    vocabulary = VALIDATION if args.vocabulary == "validation" else HELD_OUT
+    vocabulary = VOCABULARIES[args.vocabulary]
     path = Path(args.output) / f"{args.split}-paraphrased-{args.vocabulary}.jsonl"
     path.parent.mkdir(parents=True, exist_ok=True)
     return save_episodes(path, paraphrase_episodes(specs, seed=0, vocabulary=vocabulary))
@@ -100,8 +99,10 @@ def main() -> None:
         "--name", help="the results file's agent part (default: --agent); one per checkpoint"
     )
     parser.add_argument(
-        "--vocabulary", choices=("held_out", "validation"), default="held_out",
-        help="the paraphrases' vocabulary: held_out reports, validation chooses settings",
+        "--vocabulary", choices=("held_out", "validation", "second_held_out"),
+        default="held_out",
+        help="the paraphrases' vocabulary: held_out reports, validation chooses settings, "
+        "second_held_out measures a change designed on held_out's failures",
     )  # fmt: skip
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)
@@ -120,7 +121,7 @@ def main() -> None:
         }
         print(f"{name}: SR {rows[name]['SR']:.3f} SPL {rows[name]['SPL']:.3f}", flush=True)
     RESULTS.mkdir(exist_ok=True)
-    suffix = "_validation" if args.vocabulary == "validation" else ""
+    suffix = "" if args.vocabulary == "held_out" else f"_{args.vocabulary}"
     stem = RESULTS / f"bench_robustness_{args.name or args.agent}_{args.split}{suffix}"
     key = [args.agent, args.checkpoint, args.split, args.first, args.episodes]
     if stem.with_suffix(".json").is_file():  # conditions of an earlier run on the same episodes
@@ -134,7 +135,7 @@ def main() -> None:
         f"{args.checkpoint} --split {args.split} --first {args.first} --episodes "
         f"{args.episodes} --workers {args.workers}"
         + (f" --name {args.name}" if args.name else "")
-        + (" --vocabulary validation" if args.vocabulary == "validation" else "")
+        + (f" --vocabulary {args.vocabulary}" if suffix else "")
     )
     lines = [
         f"# Robustness: {args.agent} on {args.split} {args.first}-{args.first + args.episodes - 1}",

@@ -10,6 +10,7 @@ from vla_gr.envs.episodes import sample_episode
 from vla_gr.envs.instructions import TEMPLATES, parse_instruction
 from vla_gr.envs.paraphrase import (
     HELD_OUT,
+    SECOND_HELD_OUT,
     SYNONYMS,
     TRAINING,
     VALIDATION,
@@ -76,8 +77,22 @@ def _vocabulary_words(v) -> set[str]:
 
 @pytest.mark.parametrize(
     "first, second",
-    [(TRAINING, HELD_OUT), (VALIDATION, HELD_OUT), (VALIDATION, TRAINING)],
-    ids=["training-held_out", "validation-held_out", "validation-training"],
+    [
+        (TRAINING, HELD_OUT),
+        (VALIDATION, HELD_OUT),
+        (VALIDATION, TRAINING),
+        (SECOND_HELD_OUT, HELD_OUT),
+        (SECOND_HELD_OUT, TRAINING),
+        (SECOND_HELD_OUT, VALIDATION),
+    ],
+    ids=[
+        "training-held_out",
+        "validation-held_out",
+        "validation-training",
+        "second-held_out",
+        "second-training",
+        "second-validation",
+    ],
 )
 def test_the_vocabularies_share_no_word(first, second):
     template_words = set(re.findall(r"[a-z']+", " ".join(TEMPLATES).replace("{np}", "")))

@@ -7,11 +7,13 @@ find ...". None of these words or sentence shapes occur in
 :data:`~vla_gr.envs.instructions.TEMPLATES`, so an agent evaluated on them meets language it
 was never trained on. :func:`paraphrase_episodes` rewrites a list of episode specs.
 
-Three vocabularies with no word or shape in common: :data:`HELD_OUT` (what robustness is
+Four vocabularies with no word or shape in common: :data:`HELD_OUT` (what robustness is
 measured on), :data:`TRAINING` (for ``training.paraphrase_prob``: the goal head learns that
 unseen wording can name the same object, without seeing the held-out words; and for the
-instruction reader) and :data:`VALIDATION` (for choosing a learned part's settings on unseen
-wording without looking at the held-out set).
+instruction reader), :data:`VALIDATION` (for choosing a learned part's settings on unseen
+wording without looking at the held-out set) and :data:`SECOND_HELD_OUT` (written after
+failures on the first held-out set had been read, before any change was measured on it: a
+blind measure of a change designed on those failures). :data:`VOCABULARIES` names them.
 """
 
 from __future__ import annotations
@@ -28,9 +30,11 @@ from vla_gr.envs.instructions import parse_instruction
 
 __all__ = [
     "HELD_OUT",
+    "SECOND_HELD_OUT",
     "SYNONYMS",
     "TRAINING",
     "VALIDATION",
+    "VOCABULARIES",
     "Vocabulary",
     "paraphrase",
     "paraphrase_episodes",
@@ -136,6 +140,42 @@ VALIDATION = Vocabulary(
         "drive up to {subject}",
     ),
 )
+
+#: A second held-out set, written after failures on :data:`HELD_OUT` had been read and before
+#: any change was measured on it: no word or shape of the other three sets.
+SECOND_HELD_OUT = Vocabulary(
+    synonyms={
+        "chair": ("deckchair", "swivel chair"),
+        "sofa": ("davenport", "sofa bed"),
+        "bed": ("berth", "crib"),
+        "toilet": ("john", "potty"),
+        "tv_monitor": ("monitor", "boob tube"),
+        "plant": ("cactus", "ficus"),
+        "table": ("nightstand", "workbench"),
+        "cabinet": ("armoire", "locker"),
+    },
+    room_words={"living_room": "front room", "hallway": "entryway", "office": "library"},
+    near_words=("not far off", "in the vicinity of", "neighbouring"),
+    color_subject="the {noun}, the {color} one",
+    room_shapes=(
+        "proceed to the {room} to spot {subject}",
+        "{subject} should be in the {room}; get to it",
+        "wander around the {room} until you spot {subject}",
+    ),
+    plain_shapes=(
+        "get me to {subject}",
+        "travel to {subject}",
+        "my goal is {subject}",
+    ),
+)
+
+#: The vocabularies by name (``bench_robustness.py --vocabulary``).
+VOCABULARIES: dict[str, Vocabulary] = {
+    "held_out": HELD_OUT,
+    "training": TRAINING,
+    "validation": VALIDATION,
+    "second_held_out": SECOND_HELD_OUT,
+}
 
 #: Category -> words for it that the templates never use (the held-out set).
 SYNONYMS: dict[str, tuple[str, ...]] = HELD_OUT.synonyms
