@@ -10,8 +10,8 @@ Runs ``vla-gr eval`` (the ``config_cpu`` recipe) once per condition on episodes
 - ``paraphrase``: the same episodes with instructions rewritten by
   :func:`vla_gr.envs.paraphrase.paraphrase_episodes` (synonyms and sentence shapes the
   templates never use): in the held-out vocabulary, or with ``--vocabulary validation`` in
-  the one for choosing settings, or ``second_held_out`` (the results file gets a
-  ``_<vocabulary>`` suffix for any but ``held_out``);
+  the one for choosing settings, or ``second_held_out`` / ``third_held_out`` (the results
+  file gets a ``_<vocabulary>`` suffix for any but ``held_out``);
 - ``depth_noise``: ``env.depth_noise_std=0.02`` (Gaussian, metres, per pixel);
 - ``actuation_noise``: ``env.actuation_noise=0.1`` (+-10% on v and w, per step).
 
@@ -99,7 +99,7 @@ def main() -> None:
         "--name", help="the results file's agent part (default: --agent); one per checkpoint"
     )
     parser.add_argument(
-        "--vocabulary", choices=("held_out", "validation", "second_held_out"),
+        "--vocabulary", choices=("held_out", "validation", "second_held_out", "third_held_out"),
         default="held_out",
         help="the paraphrases' vocabulary: held_out reports, validation chooses settings, "
         "second_held_out measures a change designed on held_out's failures",

@@ -12,6 +12,7 @@ from vla_gr.envs.paraphrase import (
     HELD_OUT,
     SECOND_HELD_OUT,
     SYNONYMS,
+    THIRD_HELD_OUT,
     TRAINING,
     VALIDATION,
     paraphrase,
@@ -84,6 +85,10 @@ def _vocabulary_words(v) -> set[str]:
         (SECOND_HELD_OUT, HELD_OUT),
         (SECOND_HELD_OUT, TRAINING),
         (SECOND_HELD_OUT, VALIDATION),
+        (THIRD_HELD_OUT, HELD_OUT),
+        (THIRD_HELD_OUT, TRAINING),
+        (THIRD_HELD_OUT, VALIDATION),
+        (THIRD_HELD_OUT, SECOND_HELD_OUT),
     ],
     ids=[
         "training-held_out",
@@ -92,6 +97,10 @@ def _vocabulary_words(v) -> set[str]:
         "second-held_out",
         "second-training",
         "second-validation",
+        "third-held_out",
+        "third-training",
+        "third-validation",
+        "third-second",
     ],
 )
 def test_the_vocabularies_share_no_word(first, second):

@@ -7,13 +7,14 @@ find ...". None of these words or sentence shapes occur in
 :data:`~vla_gr.envs.instructions.TEMPLATES`, so an agent evaluated on them meets language it
 was never trained on. :func:`paraphrase_episodes` rewrites a list of episode specs.
 
-Four vocabularies with no word or shape in common: :data:`HELD_OUT` (what robustness is
+Five vocabularies with no word or shape in common: :data:`HELD_OUT` (what robustness is
 measured on), :data:`TRAINING` (for ``training.paraphrase_prob``: the goal head learns that
 unseen wording can name the same object, without seeing the held-out words; and for the
 instruction reader), :data:`VALIDATION` (for choosing a learned part's settings on unseen
-wording without looking at the held-out set) and :data:`SECOND_HELD_OUT` (written after
+wording without looking at the held-out set), :data:`SECOND_HELD_OUT` (written after
 failures on the first held-out set had been read, before any change was measured on it: a
-blind measure of a change designed on those failures). :data:`VOCABULARIES` names them.
+blind measure of a change designed on those failures) and :data:`THIRD_HELD_OUT` (the same
+for the second set's failures). :data:`VOCABULARIES` names them.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ __all__ = [
     "HELD_OUT",
     "SECOND_HELD_OUT",
     "SYNONYMS",
+    "THIRD_HELD_OUT",
     "TRAINING",
     "VALIDATION",
     "VOCABULARIES",
@@ -169,12 +171,41 @@ SECOND_HELD_OUT = Vocabulary(
     ),
 )
 
+#: A third held-out set, written after the second one's failures had been read and before any
+#: change was measured on it: no word or shape of the other four sets.
+THIRD_HELD_OUT = Vocabulary(
+    synonyms={
+        "chair": ("wingback", "beanbag"),
+        "sofa": ("camelback", "settle"),
+        "bed": ("waterbed", "four-poster"),
+        "toilet": ("latrine", "restroom"),
+        "tv_monitor": ("idiot box", "plasma"),
+        "plant": ("succulent", "yucca"),
+        "table": ("console", "dinette"),
+        "cabinet": ("hutch", "credenza"),
+    },
+    room_words={"living_room": "drawing room", "hallway": "foyer", "office": "workspace"},
+    near_words=("flanking", "abutting", "touching"),
+    color_subject="the {noun} painted {color}",
+    room_shapes=(
+        "within the {room}, track down {subject}",
+        "visit the {room}: {subject} awaits",
+        "hunt through the {room} for {subject}",
+    ),
+    plain_shapes=(
+        "track down {subject}",
+        "hunt for {subject}",
+        "{subject} is what i'm after",
+    ),
+)
+
 #: The vocabularies by name (``bench_robustness.py --vocabulary``).
 VOCABULARIES: dict[str, Vocabulary] = {
     "held_out": HELD_OUT,
     "training": TRAINING,
     "validation": VALIDATION,
     "second_held_out": SECOND_HELD_OUT,
+    "third_held_out": THIRD_HELD_OUT,
 }
 
 #: Category -> words for it that the templates never use (the held-out set).

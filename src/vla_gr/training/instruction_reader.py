@@ -67,17 +67,17 @@ def reader_corpus(
     (default: the world's); a category or room outside those lists is labelled "not named".
 
     ``vocabulary`` "training" mixes template phrasings (``template_share``), training
-    paraphrases and instructions about unknown objects (``unknown_share``); "validation" and
-    "held_out" say every instruction in that paraphrase vocabulary; "template" only in
-    templates.
+    paraphrases and instructions about unknown objects (``unknown_share``); any other name in
+    :data:`~vla_gr.envs.paraphrase.VOCABULARIES` ("validation", "held_out", ...) says every
+    instruction in that paraphrase vocabulary; "template" only in templates.
     Returns ``instructions`` (N,) and, per field, labels (N,) int64 (0 = not named).
     """
     from vla_gr.core.grounding import InstructionReaderConfig
     from vla_gr.envs.instructions import render_instruction
-    from vla_gr.envs.paraphrase import HELD_OUT, TRAINING, VALIDATION, paraphrase
+    from vla_gr.envs.paraphrase import TRAINING, VOCABULARIES, paraphrase
     from vla_gr.envs.scene import category_display_name
 
-    choices = ("training", "validation", "held_out", "template")
+    choices = (*VOCABULARIES, "template")
     if vocabulary not in choices:
         raise UserError(f"vocabulary={vocabulary!r} is not one of {list(choices)}")
     config = InstructionReaderConfig()
@@ -95,8 +95,8 @@ def reader_corpus(
         text = render_instruction(desc, rng)
         category = label(desc.category, categories)
         draw = rng.random()
-        if vocabulary in ("validation", "held_out"):
-            text = paraphrase(text, rng, VALIDATION if vocabulary == "validation" else HELD_OUT)
+        if vocabulary not in ("training", "template"):
+            text = paraphrase(text, rng, VOCABULARIES[vocabulary])
         elif vocabulary == "training" and draw < unknown_share:
             noun = str(rng.choice(UNKNOWN_OBJECTS))
             spoken = category_display_name(desc.category)  # as render_instruction says it
