@@ -110,3 +110,17 @@ def test_locative_senses_read_the_noun_after_into_the_as_a_place():
     )
     reading = off.read("go into the lounge and find the armchair")
     assert (reading.category, reading.anchor) == ("sofa", "chair")
+
+
+def test_a_taxonomic_group_names_what_its_members_are(senses):
+    # "ficus" is a genus (an abstraction) to WordNet; its members are fig trees: plants
+    assert senses.role("ficus") == ("category", NAMES.index("plant"))
+
+
+def test_two_word_nouns_are_read_whole():
+    config = InstructionLexiconConfig(enabled=True, word_senses=True)
+    lex = InstructionLexicon(config, encoder=HandMadeEncoder({}))
+    assert lex.read("travel to the boob tube").category == "tv_monitor"  # "boob": a blunder
+    reading = lex.read("get me to the swivel chair in the vicinity of the sofa bed")
+    assert (reading.category, reading.goal_word) == ("chair", "swivel")
+    assert lex.read("go to the tv next to the bed").anchor == "bed"  # names need no phrase

@@ -20,7 +20,8 @@ that does not is kept as it was said. With ``word_senses`` a noun is first looke
 WordNet (:class:`~vla_gr.core.grounding.word_senses.WordSenses`): what its most common physical
 sense is a kind of names its category or room type, a place of no known type ("the house")
 and a word for no physical thing ("a step from") are neither goal, anchor nor room, and only
-a word WordNet lacks, or knows as some other object, goes to the encoder. With
+a word WordNet lacks, or knows as some other object, goes to the encoder; a two-word noun
+WordNet knows ("sofa bed", "swivel chair") is read whole. With
 ``locative_senses`` too, a noun after a preposition of containment ("in", "into", "inside",
 "within", "throughout") is read by its most common sense that is a room or building, when it
 has one: "go into the lounge" names a room, though WordNet's first "lounge" is a sofa. An
@@ -180,7 +181,7 @@ class InstructionLexicon:
                 if i + span > len(words):
                     continue
                 role = self._senses.role(" ".join(words[i : i + span]), place)
-                if role is None or (span == 2 and role[0] not in ("room", "place")):
+                if role is None or (span == 2 and role[0] not in ("room", "place", "category")):
                     continue
                 kind, index = role
                 if kind == "room":

@@ -19,6 +19,10 @@ copy of the data, so it works offline) and reads its *most common physical sense
   the goal, an anchor nor a room;
 - ``None``: WordNet does not know the word (the caller falls back on the encoder).
 
+A taxonomic group names its members: "ficus" is a genus to WordNet, and what a ficus in a
+house is, is one of its members (a fig tree: a plant). Two-word nouns ("sofa bed", "swivel
+chair") are looked up whole by the caller.
+
 ``role(word, place=True)`` reads a noun the sentence puts in a place's slot ("go *into the*
 lounge"): by its most common sense that is a room or building, when it has one. WordNet's most
 common sense of "lounge" is a sofa; its second, a room with seating, is what "into the lounge"
@@ -81,6 +85,7 @@ class WordSenses:
                     if physical and (synset not in best or rank < best[synset][0]):
                         best[synset] = (rank, (kind, index))
         self._places = {wn.synset("room.n.01"), wn.synset("building.n.01")}
+        self._taxon = wn.synset("taxonomic_group.n.01")
         self._thing = thing
         return {synset: role for synset, (_, role) in best.items()}
 
@@ -113,11 +118,18 @@ class WordSenses:
                     return role
         return roles[0]
 
-    def _sense_role(self, synset) -> Role:
-        """The role of one sense: its nearest named ancestor, else place / object / abstract."""
+    def _sense_role(self, synset, depth: int = 0) -> Role:
+        """The role of one sense: its nearest named ancestor, else place / object / abstract;
+        a taxonomic group's is its first member's that is a physical thing (genus -> species,
+        ``depth`` counts the steps)."""
         paths = synset.hypernym_paths()  # each from the root
         ancestors = {synset}.union(*paths)
         if self._thing not in ancestors:
+            if self._taxon in ancestors and depth < 2:
+                for member in synset.member_meronyms():
+                    role = self._sense_role(member, depth + 1)
+                    if role[0] != "abstract":
+                        return role
             return ("abstract", None)
         for path in paths:  # the nearest named ancestor, path by path
             for ancestor in reversed(path):
