@@ -3,12 +3,12 @@
     python benchmarks/bench_instruction_lexicon.py [--count 2000] [--out PATH]
 
 Instructions come from :func:`vla_gr.training.instruction_reader.reader_corpus` (random goal
-descriptions with exact labels) in three wordings: the templates, the *validation*
+descriptions with exact labels) in five wordings: the templates, the *validation*
 paraphrase vocabulary (the settings grid, where ``word_senses``, ``room_threshold`` and
-``category_margin`` are chosen) and the *held-out* one (the chosen settings only: what is
-reported). Per field (goal category, relation anchor, room type): the share of instructions
-where the lexicon names the right class, where it names a wrong one, and where every field is
-right. Writes ``<out>.json`` and ``<out>.md``.
+``category_margin`` are chosen) and the three *held-out* ones (the chosen settings only, with
+``locative_senses`` off and on: what is reported). Per field (goal category, relation anchor,
+room type): the share of instructions where the lexicon names the right class, where it names
+a wrong one, and where every field is right. Writes ``<out>.json`` and ``<out>.md``.
 """
 
 from __future__ import annotations
@@ -113,13 +113,19 @@ def main() -> None:
     settings = {k: chosen[k] for k in ("word_senses", "room_threshold", "category_margin")}
     config = InstructionLexiconConfig(**settings)
     lexicon = InstructionLexicon(config)
+    locative = InstructionLexicon(InstructionLexiconConfig(**settings, locative_senses=True))
+    held_out = {}
+    for vocabulary in ("held_out", "second_held_out", "third_held_out"):
+        corpus = reader_corpus(args.count, args.seed, vocabulary)
+        held_out[vocabulary] = reading_scores(lexicon, corpus)
+        held_out[f"{vocabulary}, locative_senses"] = reading_scores(locative, corpus)
     result = {
         "count": args.count,
         "seed": args.seed,
         "validation_grid": rows,
         "chosen": settings,
         "template": reading_scores(lexicon, corpora["template"]),
-        "held_out": reading_scores(lexicon, reader_corpus(args.count, args.seed, "held_out")),
+        **held_out,
         "machine": describe_machine(),
     }
     out = Path(args.out)
@@ -136,14 +142,15 @@ def main() -> None:
         "Shares of all instructions. Chosen on `validation`: the most right readings minus "
         "wrong ones over the three fields (a wrong reading sends S2 after another object or "
         "rejects the right one; an empty one leaves S2 as it was), ties to the defaults. "
-        "`held_out` is read once, with the chosen settings.",
+        "The held-out vocabularies are read with the chosen settings only, with and without "
+        "`locative_senses` (which changes no `validation` or `template` reading).",
         "",
         *head,
         *(_row("validation", *(r[k] for k in settings), r) for r in rows),
         "",
         *head,
         _row("template", *settings.values(), result["template"]),
-        _row("held_out", *settings.values(), result["held_out"]),
+        *(_row(name, *settings.values(), scores) for name, scores in held_out.items()),
         "",
         f"Named shares: category {result['held_out']['category']['named']}, anchor "
         f"{result['held_out']['anchor']['named']}, room {result['held_out']['room']['named']}.",
