@@ -98,11 +98,13 @@ def main() -> None:
     parser.add_argument(
         "--name", help="the results file's agent part (default: --agent); one per checkpoint"
     )
+    from vla_gr.envs.paraphrase import VOCABULARIES
+
     parser.add_argument(
-        "--vocabulary", choices=("held_out", "validation", "second_held_out", "third_held_out"),
+        "--vocabulary", choices=[v for v in VOCABULARIES if v != "training"],
         default="held_out",
         help="the paraphrases' vocabulary: held_out reports, validation chooses settings, "
-        "second_held_out measures a change designed on held_out's failures",
+        "second_held_out / third_held_out measure a change designed on an earlier set's failures",
     )  # fmt: skip
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)

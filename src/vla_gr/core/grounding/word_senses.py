@@ -111,12 +111,12 @@ class WordSenses:
         senses = _wordnet().synsets(word.replace(" ", "_"), "n")
         if not senses:
             return None
-        roles = [self._sense_role(synset) for synset in senses]
-        if place:
-            for role in roles:
-                if role[0] == "place" or role[0] == "room":
+        if place:  # the first sense that is a place; senses are read only as far as needed
+            for synset in senses:
+                role = self._sense_role(synset)
+                if role[0] in ("place", "room"):
                     return role
-        return roles[0]
+        return self._sense_role(senses[0])
 
     def _sense_role(self, synset, depth: int = 0) -> Role:
         """The role of one sense: its nearest named ancestor, else place / object / abstract;
