@@ -1,12 +1,13 @@
 """Latency of the agent's parts in closed loop, batch 1, one thread: S1 and S2 of the dual system.
 
     python benchmarks/bench_agent_latency.py --checkpoint checkpoints/vla_gr_cpu \
-        [--episodes 5] [--split val] [--variant pure_pursuit_s1=s1.kind=pure_pursuit ...]
+        [--episodes 5] [--split val] [--repeats 3] [--variant learned_s1=s1.kind=learned ...]
 
 Runs the checkpoint (and each ``--variant name=override[,override...]`` of it) on the same
-``--episodes`` episodes of ``--split`` with one torch thread, and reports p50 / p95 / p99 in
-ms of: ``decision`` (one ``select_action``, everything the agent does per control step),
-``s1`` (S1's share of a step: a chunk action from the queue or a new S1 decision),
+``--episodes`` episodes of ``--split`` with one torch thread, ``--repeats`` times, and reports
+the median over the repeats of each p50 / p95 / p99 in ms (with the range of p95) of:
+``decision`` (one ``select_action``, everything the agent does per control step), ``s1``
+(S1's share of a step: a chunk action from the queue or a new S1 decision),
 ``s1_network`` (the learned S1's forward + sampling, on the steps it runs) and ``s2`` (one
 planner tick), split into ``s2_perception`` (the goal head) and ``s2_navigator`` (the GR-field
 navigator), and the navigator's GR-field update into its stages (``field.mapping``,
@@ -97,10 +98,29 @@ def measure(checkpoint: str, overrides: list[str], env_kwargs: dict, episodes: i
     return result
 
 
+def median_of_repeats(runs: list[dict]) -> dict:
+    """One variant's result from its repeated ``measure`` runs: per part, the median over the
+    runs of p50 / p95 / p99 and the range of p95 (``p95_min``, ``p95_max``)."""
+    result = dict(runs[0])
+    for part, q in runs[0].items():
+        if not isinstance(q, dict):
+            continue
+        per_run = [r[part] for r in runs if part in r]
+        result[part] = {
+            "n": q["n"],
+            **{k: float(np.median([x[k] for x in per_run])) for k in ("p50", "p95", "p99")},
+            "p95_min": min(x["p95"] for x in per_run),
+            "p95_max": max(x["p95"] for x in per_run),
+        }
+    result["repeats"] = len(runs)
+    result["success"] = float(np.mean([r["success"] for r in runs]))
+    return result
+
+
 def table(results: dict) -> str:
     lines = [
-        "| variant | S1 | S1 params | part | calls | p50 ms | p95 ms | p99 ms |",
-        "|---|---|---|---|---|---|---|---|",
+        "| variant | S1 | S1 params | part | calls | p50 ms | p95 ms | p95 range | p99 ms |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for name, r in results.items():
         stages = [key for key in r if key.startswith("field.")]  # in GRField's own order
@@ -109,7 +129,9 @@ def table(results: dict) -> str:
                 q = r[part]
                 lines.append(
                     f"| {name} | {r['s1_kind']} | {r['s1_parameters']:,} | {part} | {q['n']} | "
-                    f"{q['p50']:.2f} | {q['p95']:.2f} | {q['p99']:.2f} |"
+                    f"{q['p50']:.2f} | {q['p95']:.2f} | "
+                    f"{q.get('p95_min', q['p95']):.2f}-{q.get('p95_max', q['p95']):.2f} | "
+                    f"{q['p99']:.2f} |"
                 )
     return "\n".join(lines)
 
@@ -121,6 +143,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--episodes", type=int, default=5)
     parser.add_argument("--split", default="val")
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument("--repeats", type=int, default=3, help="runs per variant (medians)")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
@@ -130,14 +153,20 @@ def main(argv: list[str] | None = None) -> dict:
         name, _, overrides = item.partition("=")
         variants[name] = [o for o in overrides.split(",") if o]
     env_kwargs = {"split": args.split, "semantic": False}
+    if args.repeats < 1:
+        parser.error(f"--repeats={args.repeats} must be >= 1")
     results = {
-        name: measure(args.checkpoint, overrides, env_kwargs, args.episodes)
+        name: median_of_repeats(
+            [measure(args.checkpoint, overrides, env_kwargs, args.episodes)
+             for _ in range(args.repeats)]
+        )
         for name, overrides in variants.items()
-    }
+    }  # fmt: skip
     meta = {
         "checkpoint": args.checkpoint,
         "split": args.split,
         "threads": args.threads,
+        "repeats": args.repeats,
         "machine": describe_machine(),
     }
     out = {"meta": meta, "results": results}
@@ -146,7 +175,7 @@ def main(argv: list[str] | None = None) -> dict:
     text = (
         f"# Agent latency, batch 1, {args.threads} thread(s)\n\n"
         f"`python benchmarks/bench_agent_latency.py --checkpoint {args.checkpoint} "
-        f"--episodes {args.episodes} --split {args.split}`"
+        f"--episodes {args.episodes} --split {args.split} --repeats {args.repeats}`"
         + "".join(f" `--variant {v}`" for v in args.variant)
         + f"\n\n{machine_line(meta['machine'])}\n\n{table(results)}\n"
     )

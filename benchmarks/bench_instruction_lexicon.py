@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from vla_gr.core.grounding import InstructionLexicon, InstructionLexiconConfig
+from vla_gr.envs.paraphrase import VOCABULARIES
 from vla_gr.machine import describe_machine
 from vla_gr.training.instruction_reader import reader_corpus
 
@@ -115,7 +116,7 @@ def main() -> None:
     lexicon = InstructionLexicon(config)
     locative = InstructionLexicon(InstructionLexiconConfig(**settings, locative_senses=True))
     held_out = {}
-    for vocabulary in ("held_out", "second_held_out", "third_held_out"):
+    for vocabulary in (v for v in VOCABULARIES if v.endswith("held_out")):
         corpus = reader_corpus(args.count, args.seed, vocabulary)
         held_out[vocabulary] = reading_scores(lexicon, corpus)
         held_out[f"{vocabulary}, locative_senses"] = reading_scores(locative, corpus)

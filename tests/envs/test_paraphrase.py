@@ -9,6 +9,7 @@ import torch
 from vla_gr.envs.episodes import sample_episode
 from vla_gr.envs.instructions import TEMPLATES, parse_instruction
 from vla_gr.envs.paraphrase import (
+    FOURTH_HELD_OUT,
     HELD_OUT,
     SECOND_HELD_OUT,
     SYNONYMS,
@@ -89,6 +90,10 @@ def _vocabulary_words(v) -> set[str]:
         (THIRD_HELD_OUT, TRAINING),
         (THIRD_HELD_OUT, VALIDATION),
         (THIRD_HELD_OUT, SECOND_HELD_OUT),
+        *(
+            (FOURTH_HELD_OUT, v)
+            for v in (HELD_OUT, TRAINING, VALIDATION, SECOND_HELD_OUT, THIRD_HELD_OUT)
+        ),
     ],
     ids=[
         "training-held_out",
@@ -101,6 +106,7 @@ def _vocabulary_words(v) -> set[str]:
         "third-training",
         "third-validation",
         "third-second",
+        *(f"fourth-{v}" for v in ("held_out", "training", "validation", "second", "third")),
     ],
 )
 def test_the_vocabularies_share_no_word(first, second):

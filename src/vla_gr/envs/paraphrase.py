@@ -7,14 +7,15 @@ find ...". None of these words or sentence shapes occur in
 :data:`~vla_gr.envs.instructions.TEMPLATES`, so an agent evaluated on them meets language it
 was never trained on. :func:`paraphrase_episodes` rewrites a list of episode specs.
 
-Five vocabularies with no word or shape in common: :data:`HELD_OUT` (what robustness is
+Six vocabularies with no word or shape in common: :data:`HELD_OUT` (what robustness is
 measured on), :data:`TRAINING` (for ``training.paraphrase_prob``: the goal head learns that
 unseen wording can name the same object, without seeing the held-out words; and for the
 instruction reader), :data:`VALIDATION` (for choosing a learned part's settings on unseen
 wording without looking at the held-out set), :data:`SECOND_HELD_OUT` (written after
 failures on the first held-out set had been read, before any change was measured on it: a
 blind measure of a change designed on those failures) and :data:`THIRD_HELD_OUT` (the same
-for the second set's failures). :data:`VOCABULARIES` names them.
+for the second set's failures), and :data:`FOURTH_HELD_OUT` (the same for the third set's).
+:data:`VOCABULARIES` names them.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from vla_gr.envs.episodes import EpisodeSpec
 from vla_gr.envs.instructions import parse_instruction
 
 __all__ = [
+    "FOURTH_HELD_OUT",
     "HELD_OUT",
     "SECOND_HELD_OUT",
     "SYNONYMS",
@@ -199,6 +201,34 @@ THIRD_HELD_OUT = Vocabulary(
     ),
 )
 
+#: A fourth held-out set, written after the third one's failures had been read and before any
+#: change was measured on it: no word or shape of the other five sets.
+FOURTH_HELD_OUT = Vocabulary(
+    synonyms={
+        "chair": ("lounger", "fauteuil"),
+        "sofa": ("chaise longue", "sleeper"),
+        "bed": ("trundle", "cradle"),
+        "toilet": ("washroom", "bog"),
+        "tv_monitor": ("tv set", "flat panel"),
+        "plant": ("orchid", "potted palm"),
+        "table": ("coffee table", "escritoire"),
+        "cabinet": ("tallboy", "bookcase"),
+    },
+    room_words={"living_room": "parlour", "hallway": "vestibule", "office": "studio"},
+    near_words=("hugging", "keeping company with", "tucked in with"),
+    color_subject="the {noun} in {color}",
+    room_shapes=(
+        "explore the {room} till you discover {subject}",
+        "{subject} lives somewhere in the {room}",
+        "scout the {room} for {subject}",
+    ),
+    plain_shapes=(
+        "steer toward {subject}",
+        "kindly guide me to {subject}",
+        "bring us over to {subject}",
+    ),
+)
+
 #: The vocabularies by name (``bench_robustness.py --vocabulary``).
 VOCABULARIES: dict[str, Vocabulary] = {
     "held_out": HELD_OUT,
@@ -206,6 +236,7 @@ VOCABULARIES: dict[str, Vocabulary] = {
     "validation": VALIDATION,
     "second_held_out": SECOND_HELD_OUT,
     "third_held_out": THIRD_HELD_OUT,
+    "fourth_held_out": FOURTH_HELD_OUT,
 }
 
 #: Category -> words for it that the templates never use (the held-out set).
