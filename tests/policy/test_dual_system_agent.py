@@ -446,3 +446,34 @@ def test_relation_candidates_add_the_instructed_categorys_pixels_once_per_frame(
     assert len(calls) == 2
     for text in texts[1:]:
         np.testing.assert_allclose(model.goal_likelihood(said(text))[0], head[text], atol=1e-6)
+
+
+def test_the_checks_read_the_instruction_once_per_episode(monkeypatch):
+    import vla_gr.policy.agent as agent_module
+
+    model = _model(
+        "model.object_category.enabled=true",
+        "model.room_type.enabled=true",
+        "model.object_category.relation_candidates=true",
+    )
+    reads = []
+    real = agent_module.read_instruction
+    monkeypatch.setattr(
+        agent_module, "read_instruction", lambda text, *a: reads.append(text) or real(text, *a)
+    )
+    obs = {**_obs(), "instruction": "find the plant near the sofa in the kitchen"}
+    model.reset()
+    ticks = 0
+    for _ in range(3 * model.dual_system.plan_every):
+        model.select_action(obs)
+        ticks = model.dual_system.navigator.ticks
+    assert ticks >= 3 and reads == [obs["instruction"]]  # room, object and relation checks
+    assert model.read_instruction(obs["instruction"]) == real(
+        obs["instruction"],
+        model.config.object_category.categories,
+        model.config.room_type.room_types,
+        model.instruction_reader,
+    )
+    model.reset()  # a new episode reads it again
+    model.select_action(obs)
+    assert reads == [obs["instruction"]] * 2

@@ -326,6 +326,7 @@ class VLAGRPolicy(nn.Module):
             InstructionLexicon(c.instruction_lexicon) if c.instruction_lexicon.enabled else None
         )
         self._segmented: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._readings: dict[str, tuple[Reading, bool]] = {}  # instruction -> read, has colour
         self.s1 = S1Policy(c.s1)
         self.dual_system = GroundedDualSystem.from_model_config(
             self.goal_likelihood,
@@ -364,12 +365,8 @@ class VLAGRPolicy(nn.Module):
         if self.object_category is None or not self.config.object_category.relation_candidates:
             return None
         instruction = as_instructions(obs["instruction"], "obs['instruction']")[0]
-        reading = self.read_instruction(instruction)
-        if reading.category is None or reading.anchor is None:
-            return None
-        if set(re.findall(r"[a-z]+", instruction.lower())) & set(
-            self.config.instruction_lexicon.colors
-        ):
+        reading, has_colour = self._read(instruction)
+        if reading.category is None or reading.anchor is None or has_colour:
             return None
         return reading.category
 
@@ -391,13 +388,24 @@ class VLAGRPolicy(nn.Module):
 
     def read_instruction(self, instruction: str) -> Reading:
         """What the checks take ``instruction`` to name (:func:`read_instruction`: template
-        words, then the instruction reader when the agent has one)."""
-        return read_instruction(
-            instruction,
-            self.config.object_category.categories,
-            self.config.room_type.room_types,
-            self.instruction_reader,
-        )
+        words, then the instruction reader when the agent has one); read once per episode."""
+        return self._read(instruction)[0]
+
+    def _read(self, instruction: str) -> tuple[Reading, bool]:
+        """(:meth:`read_instruction`, whether ``instruction`` says a colour word), computed at
+        the first S2 tick that asks and kept until :meth:`reset`: the instruction is fixed for
+        an episode, and every check reads it on every tick."""
+        if instruction not in self._readings:
+            reading = read_instruction(
+                instruction,
+                self.config.object_category.categories,
+                self.config.room_type.room_types,
+                self.instruction_reader,
+            )
+            words = set(re.findall(r"[a-z]+", instruction.lower()))
+            colours = words & set(self.config.instruction_lexicon.colors)
+            self._readings[instruction] = (reading, bool(colours))
+        return self._readings[instruction]
 
     @torch.no_grad()
     def room_match(self, obs: Mapping) -> float:
@@ -470,6 +478,7 @@ class VLAGRPolicy(nn.Module):
         self._action_queue: deque[torch.Tensor] = deque(maxlen=self.config.n_action_steps)
         self.read_as: str | None = None  # this episode's instruction as the lexicon said it
         if self.has_goal_head:
+            self._readings.clear()
             self.dual_system.reset()
 
     @torch.no_grad()
