@@ -128,10 +128,12 @@ class WordSenses:
         """The role of the longest head (at least ``_MIN_PART`` letters, as is its modifier)
         that makes ``word`` a compound of two words WordNet knows, when that head names a
         category or room type; else None."""
+        if " " in word:
+            return None
         wn = _wordnet()
         for cut in range(_MIN_PART, len(word) - _MIN_PART + 1):
             head, modifier = word[cut:], word[:cut]
-            if " " in word or not (wn.synsets(head, "n") and wn.synsets(modifier)):
+            if not (wn.synsets(head, "n") and wn.synsets(modifier)):
                 continue
             role = self.role(head, place)
             return role if role is not None and role[0] in ("category", "room") else None
