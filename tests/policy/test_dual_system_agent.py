@@ -477,3 +477,9 @@ def test_the_checks_read_the_instruction_once_per_episode(monkeypatch):
     model.reset()  # a new episode reads it again
     model.select_action(obs)
     assert reads == [obs["instruction"]] * 2
+
+
+def test_depth_guard_hands_the_pursuit_check_to_the_learned_s1():
+    guarded = _model("model.s1.kind=learned", "model.s1.depth_guard=true")
+    assert guarded.dual_system.follower.guard == guarded.config.pursuit
+    assert _model("model.s1.kind=learned").dual_system.follower.guard is None

@@ -75,6 +75,7 @@ INFERENCE_SETTINGS = (
     "object_category.relation_candidates",
     "s1.kind",
     "s1.use_s2",
+    "s1.depth_guard",
     "s1.stop_threshold",
     "s1.n_action_steps",
     "s1.head.num_inference_steps",

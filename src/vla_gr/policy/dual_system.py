@@ -79,7 +79,11 @@ class GroundedDualSystem:
         self.room_match = room_match
         self.object_evidence = object_evidence
         self.navigator = Navigator(navigator, field, plan_every=plan_every)
-        self.follower = PurePursuit(pursuit) if s1 is None else LearnedFollower(s1)
+        if s1 is None:
+            self.follower = PurePursuit(pursuit)
+        else:
+            guard = (pursuit or PursuitConfig()) if s1.config.depth_guard else None
+            self.follower = LearnedFollower(s1, guard=guard)
         self.plan_every = self.navigator.plan_every
         #: seconds of the last step's parts: ``s1`` always; on planner ticks ``s2`` and its two
         #: parts, ``s2_perception`` (the goal likelihood) and ``s2_navigator`` (GR field + rules)

@@ -279,3 +279,34 @@ def test_config_errors_name_the_key_through_the_config_loader():
     # S1's width is one key: the head's context follows it
     _, cfg = load_config("config_debug", ["model.s1.dim=48", "model.s1.head.hidden_dim=32"])
     assert S1Policy(cfg.model.s1).head.context_dim == 48
+
+
+def test_the_depth_guard_limits_forward_speed_as_the_pursuit_check_does():
+    from vla_gr.core.dual_system import PursuitConfig
+    from vla_gr.core.dual_system.pure_pursuit import clearance_ahead, guarded_speed
+
+    guard = PursuitConfig()
+    free, guarded = _follower(seed=1), _follower(seed=1)
+    guarded.guard = guard
+    with torch.no_grad():
+        for f in (free, guarded):
+            f.policy.stop_head[2].bias.fill_(-50.0)  # never STOP
+    guarded.policy.load_state_dict(free.policy.state_dict())
+    rgb = np.zeros((32, 32, 3), np.uint8)
+    pose = np.zeros(3)
+    for follower in (free, guarded):
+        follower.set_plan(_plan(), pose)
+    # a wall 0.5 m ahead fills the view: between stop_distance (0.25) and slow_distance (0.8)
+    wall = np.full((32, 32, 1), 0.5, np.float32)
+    clearance = clearance_ahead(wall, guard)
+    assert clearance == pytest.approx(0.5, abs=1e-5)
+    for _ in range(4):
+        a, b = free.act(wall, pose, rgb=rgb), guarded.act(wall, pose, rgb=rgb)
+        np.testing.assert_array_equal(a[1:], b[1:])  # turning and STOP untouched
+        expected = guarded_speed(float(a[0]), clearance, guard)
+        assert b[0] == pytest.approx(expected, abs=1e-6)
+        if a[0] > 0:
+            assert b[0] == pytest.approx(a[0] * (0.5 - 0.25) / (0.8 - 0.25), abs=1e-6)
+        else:
+            assert b[0] == a[0]  # backing up is never limited
+    assert guarded_speed(0.6, 0.2, guard) == 0.0 and guarded_speed(0.6, 5.0, guard) == 0.6

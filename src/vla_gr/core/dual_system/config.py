@@ -86,6 +86,9 @@ class S1Config:
     stop_threshold: float = 0.5  # STOP when its probability is above this
     stop_weight: float = 1.0  # weight of the STOP BCE in the training loss
     use_s2: bool = True
+    # the pure-pursuit follower's depth check on the learned S1's forward speed (model.pursuit's
+    # corridor, stop_distance and slow_distance): a safety layer, not a learned behaviour
+    depth_guard: bool = False
     head: HeadConfig = field(default_factory=_s1_head)
 
     def __post_init__(self) -> None:

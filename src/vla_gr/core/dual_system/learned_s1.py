@@ -23,6 +23,7 @@ from torch import nn
 
 from vla_gr.core.diffusion_policy import DiffusionPolicy
 from vla_gr.core.dual_system.config import S1Config
+from vla_gr.core.dual_system.pure_pursuit import PursuitConfig, clearance_ahead, guarded_speed
 from vla_gr.core.dual_system.s1_inputs import PlanMemory, plan_vector_size, pool_rgbd
 
 __all__ = ["LearnedFollower", "S1Policy"]
@@ -110,8 +111,12 @@ class LearnedFollower:
     ``set_plan(plan, pose)`` after each S2 tick, ``act(depth, pose, rgb)`` every step.
     """
 
-    def __init__(self, policy: S1Policy, seed: int = 0) -> None:
+    def __init__(self, policy: S1Policy, seed: int = 0, guard: PursuitConfig | None = None):
+        """``guard``: the depth check (``model.pursuit``) that limits the forward speed of
+        every action S1 emits (``model.s1.depth_guard``); None leaves S1's actions as they
+        are."""
         self.policy = policy
+        self.guard = guard
         self.config = policy.config
         self.memory = PlanMemory(self.config.path_points)
         self.seed = int(seed)
@@ -159,4 +164,9 @@ class LearnedFollower:
             steps = chunk[0, : self.config.n_action_steps].cpu().numpy()  # (n, 2)
             self.queue.extend(np.concatenate([steps, -np.ones((len(steps), 1))], 1))
         self.steps += 1
-        return self.queue.popleft().astype(np.float32)  # (3,)
+        action = self.queue.popleft().astype(np.float32)  # (3,) = (v, w, stop)
+        if self.guard is not None and action[0] > 0:
+            action[0] = guarded_speed(
+                float(action[0]), clearance_ahead(depth, self.guard), self.guard
+            )
+        return action

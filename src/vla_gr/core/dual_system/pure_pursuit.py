@@ -104,6 +104,16 @@ def clearance_ahead(depth: np.ndarray, cfg: PursuitConfig, bearing: float = 0.0)
     return float(along[corridor].min()) if corridor.any() else math.inf
 
 
+def guarded_speed(v: float, clearance: float, cfg: PursuitConfig) -> float:
+    """Forward fraction ``v`` scaled by the depth check: unchanged with ``clearance`` (m, the
+    nearest obstacle in the corridor ahead) beyond ``slow_distance``, falling linearly to 0 at
+    ``stop_distance``; backing up (``v <= 0``) is never limited."""
+    if v <= 0:
+        return v
+    span = cfg.slow_distance - cfg.stop_distance
+    return v * min(1.0, max(0.0, (clearance - cfg.stop_distance) / span))
+
+
 def pursuit_action(
     target: np.ndarray, cfg: PursuitConfig, clearance: float = math.inf, ahead=math.inf
 ):
@@ -175,9 +185,7 @@ class PurePursuit:
         self.last_clearance = clearance_ahead(depth, cfg)
         if self._command is not None:
             v, w = self._command
-            if v > 0:  # open-loop forward motion still respects the depth check
-                span = cfg.slow_distance - cfg.stop_distance
-                v *= min(1.0, max(0.0, (self.last_clearance - cfg.stop_distance) / span))
+            v = guarded_speed(v, self.last_clearance, cfg)  # open-loop motion is checked too
             return np.array([np.clip(v, -1, 1), np.clip(w, -1, 1), -1.0], np.float32)
         if self._world is None:
             return np.array([0.0, 0.0, -1.0], np.float32)
