@@ -122,6 +122,13 @@ class LexiconReading:
     room_word: str | None = None
 
 
+def _nearest_by_lead(similarities: torch.Tensor, margin: float) -> int | None:
+    """Index of the largest of ``similarities`` (N,) when it leads the next by ``margin``."""
+    top = similarities.topk(min(2, len(similarities)))
+    lead = float(top.values[0] - top.values[1]) if len(top.values) > 1 else 2.0
+    return int(top.indices[0]) if lead >= margin else None
+
+
 class InstructionLexicon:
     """Maps an instruction's nouns to the config's category and room-type names and renders
     the template phrasing (:meth:`canonical`); results are cached per instruction."""
@@ -165,13 +172,19 @@ class InstructionLexicon:
         for span in (1, 2):
             if i + span > len(words):
                 break
-            to_categories, to_rooms = self.similarities(" ".join(words[i : i + span]))
-            score, room = to_rooms.max(dim=0)
-            if float(score) > best[0] and float(score) > float(to_categories.max()):
-                best = (float(score), int(room), span)
+            near = self._room_like(" ".join(words[i : i + span]))
+            if near is not None and near[0] > best[0]:
+                best = (*near, span)
         if best[0] >= self.config.room_threshold:
             return self.config.room_types[best[1]], best[2]
         return None, 1
+
+    def _room_like(self, phrase: str) -> tuple[float, int] | None:
+        """(similarity, index) of the room name nearest ``phrase`` when it is nearer to it than
+        to every category name, else None."""
+        to_categories, to_rooms = self.similarities(phrase)
+        score, room = to_rooms.max(dim=0)
+        return (float(score), int(room)) if float(score) > float(to_categories.max()) else None
 
     def _room_by_encoder(self, phrase: str, kind: str) -> str | None:
         """The room type a noun WordNet does not type names by the encoder (``place_senses``):
@@ -180,26 +193,19 @@ class InstructionLexicon:
         every category; else None."""
         if kind == "place":
             return None
-        to_categories, to_rooms = self.similarities(phrase)
-        top = to_rooms.topk(min(2, len(to_rooms)))
-        best = float(top.values[0])
         if kind == "room":
-            lead = best - float(top.values[1]) if len(top.values) > 1 else 2.0
-            named = lead >= self.config.room_margin
+            room = _nearest_by_lead(self.similarities(phrase)[1], self.config.room_margin)
         else:
-            named = best >= self.config.room_threshold and best > float(to_categories.max())
-        return self.config.room_types[int(top.indices[0])] if named else None
+            near = self._room_like(phrase)
+            room = near[1] if near is not None and near[0] >= self.config.room_threshold else None
+        return None if room is None else self.config.room_types[room]
 
     def _category_of(self, word: str) -> str | None:
         """The category ``word`` names: its own name, or the nearest one by ``category_margin``."""
         if word in self._category_names:
             return self.config.categories[self._category_names.index(word)]
-        to_categories, _ = self.similarities(word)
-        top = to_categories.topk(min(2, len(to_categories)))
-        lead = float(top.values[0] - top.values[1]) if len(top.values) > 1 else 2.0
-        if lead < self.config.category_margin:
-            return None
-        return self.config.categories[int(top.indices[0])]
+        k = _nearest_by_lead(self.similarities(word)[0], self.config.category_margin)
+        return None if k is None else self.config.categories[k]
 
     def _role(self, words: list[str], i: int, locative: bool) -> tuple[str, str | None, int]:
         """(kind, name, words used) of the noun at ``words[i]``: kind "room" / "category"
@@ -212,7 +218,8 @@ class InstructionLexicon:
             for span in (2, 1):
                 if i + span > len(words):
                     continue
-                role = self._senses.role(" ".join(words[i : i + span]), place)
+                phrase = " ".join(words[i : i + span])
+                role = self._senses.role(phrase, place)
                 if role is None or (span == 2 and role[0] not in ("room", "place", "category")):
                     continue
                 kind, index = role
@@ -220,9 +227,7 @@ class InstructionLexicon:
                     return "room", c.room_types[index], span
                 if kind == "category":
                     return "category", c.categories[index], span
-                room = self._room_by_encoder(" ".join(words[i : i + span]), kind) if (
-                    c.place_senses
-                ) else None  # fmt: skip
+                room = self._room_by_encoder(phrase, kind) if c.place_senses else None
                 if room is not None:
                     return "room", room, span
                 if kind == "object" and not (place and c.place_senses):
