@@ -11,8 +11,9 @@ import pytest
 import torch
 
 from vla_gr.core.diffusion_policy import HeadConfig
-from vla_gr.core.dual_system import LearnedFollower, S1Config, S1Policy
+from vla_gr.core.dual_system import LearnedFollower, PursuitConfig, S1Config, S1Policy
 from vla_gr.core.dual_system.config import _s1_head
+from vla_gr.core.dual_system.pure_pursuit import clearance_ahead, guarded_speed
 from vla_gr.core.dual_system.s1_inputs import plan_vector_size
 from vla_gr.core.gr_field.navigator import NavPlan
 
@@ -282,9 +283,6 @@ def test_config_errors_name_the_key_through_the_config_loader():
 
 
 def test_the_depth_guard_limits_forward_speed_as_the_pursuit_check_does():
-    from vla_gr.core.dual_system import PursuitConfig
-    from vla_gr.core.dual_system.pure_pursuit import clearance_ahead, guarded_speed
-
     guard = PursuitConfig()
     free, guarded = _follower(seed=1), _follower(seed=1)
     guarded.guard = guard
