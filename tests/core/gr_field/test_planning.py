@@ -335,3 +335,50 @@ def test_features_are_read_from_their_own_tick_and_cost_the_update_nothing():
     assert out2.features is out2.features  # computed once, then kept
     phi = out2.features[0, FEATURE_NAMES.index("phi")]  # (h, w)
     assert float(phi.min()) >= 0.0 and float(phi.max()) <= 1.0
+
+
+def _wall_with_gap(field: GRField, last_above: int, first_below: int) -> np.ndarray:
+    """Obstacle points in sub-column 91 (cell column 30) at every sub-row but those strictly
+    between ``last_above`` and ``first_below``; returns the cells' occupancy (64, 64)."""
+    k = field.config.clearance_factor
+    field.sub_hits.zero_()
+    rows = [r for r in range(64 * k) if r <= last_above or r >= first_below]
+    field.sub_hits[0, 0, rows, 91] = 1.0
+    return field.sub_hits[0, 0].reshape(64, k, 64, k).sum(dim=(1, 3)).numpy() > 0
+
+
+def test_sub_cells_judge_a_gap_by_where_its_edges_are():
+    field = GRField(map_size=64, cell_size=0.15, clearance_factor=3)
+    field.update(obs_of((0.0, 0.0, 0.0)))  # allocates the batch
+    assert field.sub_hits.shape == (1, 1, 192, 192)
+    whole = (slice(0, 64), slice(0, 64))
+    # a 0.50 m gap (free sub-rows 61..70): the robot (0.36 m) fits with 0.07 m to each side,
+    # but only cells 21 and 22 are wholly free, and each is next to an occupied one
+    occ = _wall_with_gap(field, 60, 71)
+    assert not occ[21:23, 30].any() and occ[20, 30] and occ[23, 30]
+    by_cells = GRField(map_size=64, cell_size=0.15)._no_fit(0, occ, whole)
+    assert by_cells[:, 30].all()  # the cells alone close it
+    no_fit = field._no_fit(0, occ, whole)
+    assert not no_fit[21, 30] and no_fit[occ].all()  # sub-cells open it; obstacles never fit
+    # a 0.35 m gap (free sub-rows 61..67) is narrower than the robot: closed either way
+    occ = _wall_with_gap(field, 60, 68)
+    assert field._no_fit(0, occ, whole)[:, 30].all()
+
+
+def test_sub_cells_count_the_same_points_and_marked_obstacles_fill_them():
+    field = GRField(map_size=96, cell_size=0.15, clearance_factor=3)
+    field.update(obs_of((0.3, -0.2, 0.4)))
+    field.update(obs_of((0.0, 0.4, 2.0)))
+    sub = field.sub_hits[0, 0].reshape(96, 3, 96, 3).sum(dim=(1, 3))  # (96, 96) per cell
+    assert float(sub.sum()) > 100
+    torch.testing.assert_close(sub, field.map_state[0, OCC_HITS], rtol=0, atol=0)
+    before = field.sub_hits.clone(), field.map_state.clone()
+    cells = torch.tensor([[40, 41], [50, 52]])
+    field.add_obstacle_evidence(cells, 100.0)
+    assert field.map_state[0, OCC_HITS, 40, 41] >= 100.0
+    assert bool((field.sub_hits[0, 0, 120:123, 123:126] >= 100.0).all())
+    assert float(field.sub_hits.sum() - before[0].sum()) == 2 * 9 * 100.0
+    field.add_obstacle_evidence(cells, -100.0)  # taken back: as before
+    assert torch.equal(field.sub_hits, before[0]) and torch.equal(field.map_state, before[1])
+    with pytest.raises(ValueError, match="clearance_factor"):
+        GRFieldConfig(clearance_factor=0)

@@ -62,9 +62,13 @@ class GRFieldConfig:
     path_step: float = 0.5  # descent step in cells
     travel_clip: float = 20.0
     planning_margin: float = 3.0  # fast marching runs on the explored bounding box + this (m)
+    # sub-cells per cell side where obstacle points are also counted: whether the robot's
+    # centre fits in a cell is judged at cell_size / clearance_factor (1: at the cells
+    # themselves); a gap a few cells wide is then not closed by where its edges fall in cells
+    clearance_factor: int = 1
 
     def __post_init__(self) -> None:
-        for key in ("map_size", "ego_size", "num_waypoints"):
+        for key in ("map_size", "ego_size", "num_waypoints", "clearance_factor"):
             if int(getattr(self, key)) < 1:
                 raise ValueError(f"gr_field.{key}={getattr(self, key)} must be >= 1")
         if self.map_size < 3:

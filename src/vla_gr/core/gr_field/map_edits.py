@@ -48,18 +48,14 @@ class MapEdits:
         cells = self.disk_cells(xy, radius)  # (D, 2)
         if self.field.map_state.shape[0] == 0 or len(cells) == 0:
             return
-        self.field.map_state[0, OCC_HITS, cells[:, 0], cells[:, 1]] += (
-            self.config.virtual_obstacle_hits
-        )
+        self.field.add_obstacle_evidence(cells, self.config.virtual_obstacle_hits)
         if not lasting:
             self.virtual.append(cells)
 
     def clear_virtual_obstacles(self) -> None:
         """Take back the evidence of every virtual obstacle (seen obstacles stay)."""
-        occ = self.field.map_state[0, OCC_HITS]  # (H, W)
         for cells in self.virtual:
-            occ[cells[:, 0], cells[:, 1]] -= self.config.virtual_obstacle_hits
-        occ.clamp_(min=0.0)
+            self.field.add_obstacle_evidence(cells, -self.config.virtual_obstacle_hits)
         self.virtual.clear()
 
     def forget_noise(self) -> None:

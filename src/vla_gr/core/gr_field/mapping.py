@@ -33,6 +33,14 @@ def centred_grid(size: int, cell_size: float) -> GridSpec:
     return GridSpec(origin_x=-half, origin_y=-half, cell_size=cell_size, height=size, width=size)
 
 
+def sub_grid(grid: GridSpec, factor: int) -> GridSpec:
+    """``grid`` with each cell split into ``factor`` x ``factor`` sub-cells (same extent)."""
+    return GridSpec(
+        origin_x=grid.origin_x, origin_y=grid.origin_y, cell_size=grid.cell_size / factor,
+        height=grid.height * factor, width=grid.width * factor,
+    )  # fmt: skip
+
+
 def empty_map(batch: int, grid: GridSpec, device=None) -> torch.Tensor:
     """Zero evidence (B, 4, H, W) float32."""
     return torch.zeros(batch, NUM_MAP_CHANNELS, grid.height, grid.width, device=device)
@@ -158,7 +166,7 @@ def update_map(
         raise ValueError(f"floor_height={floor_height} must be < max_height={max_height}")
     points = points.to(state.dtype)
     xy, z = points[..., :2], points[..., 2]  # (B, N, 2), (B, N)
-    obstacle = valid & (z >= floor_height) & (z <= max_height)  # (B, N)
+    obstacle = obstacle_band(points, valid, floor_height, max_height)  # (B, N)
     floor = valid & (z < floor_height)  # (B, N)
     ones = torch.ones_like(z)  # (B, N)
     _scatter(state, grid, xy, obstacle, OCC_HITS, ones)
@@ -188,6 +196,46 @@ def update_map(
         mask = torch.ones(foot.shape[:2], dtype=torch.bool, device=state.device)  # (B, D)
         _scatter(state, grid, foot, mask, FREE_HITS, torch.ones_like(mask, dtype=state.dtype))
     return state
+
+
+def obstacle_band(
+    points: torch.Tensor, valid: torch.Tensor, floor_height: float, max_height: float
+) -> torch.Tensor:
+    """(B, N) bool: the valid points (B, N, 3) between ``floor_height`` and ``max_height``."""
+    z = points[..., 2]  # (B, N)
+    return valid & (z >= floor_height) & (z <= max_height)
+
+
+def count_obstacle_points(
+    hits: torch.Tensor,
+    grid: GridSpec,
+    factor: int,
+    points: torch.Tensor,
+    valid: torch.Tensor,
+    floor_height: float,
+    max_height: float,
+) -> None:
+    """Add the obstacle-band points (B, N, 3) to the counts ``hits`` (B, 1, H * k, W * k) of the
+    sub-cells that ``factor`` k splits each of ``grid``'s cells into (in place). A point lands
+    in a sub-cell of the cell :func:`update_map` puts it in, whatever the rounding."""
+    B = hits.shape[0]
+    k, h = factor, grid.cell_size
+    points = points.to(hits.dtype)  # as update_map reads them
+    xy = points[..., :2]  # (B, N, 2)
+    cells, inside = points_to_cells(xy, grid)  # (B, N, 2) as (row, col), (B, N)
+    keep = obstacle_band(points, valid, floor_height, max_height) & inside  # (B, N)
+    offset = torch.stack(
+        [
+            (xy[..., 1] - grid.origin_y) / h - cells[..., 0],
+            (xy[..., 0] - grid.origin_x) / h - cells[..., 1],
+        ],
+        dim=-1,
+    )  # (B, N, 2) position within the cell, [0, 1)
+    sub = cells * k + (offset * k).floor().long().clamp(0, k - 1)  # (B, N, 2) sub-cell
+    width = grid.width * k
+    batch = torch.arange(B, device=hits.device)[:, None]  # (B, 1)
+    flat = batch * (grid.height * k * width) + sub[..., 0] * width + sub[..., 1]  # (B, N)
+    hits.view(-1).index_add_(0, flat[keep], torch.ones_like(flat[keep], dtype=hits.dtype))
 
 
 def map_layers(state: torch.Tensor, min_hits: float = 1.0) -> dict[str, torch.Tensor]:

@@ -33,7 +33,15 @@ import torch.nn.functional as F
 from torch import nn
 
 from vla_gr.core.gr_field.config import FEATURE_NAMES, GRFieldConfig
-from vla_gr.core.gr_field.mapping import centred_grid, empty_map, map_layers, update_map
+from vla_gr.core.gr_field.mapping import (
+    OCC_HITS,
+    centred_grid,
+    count_obstacle_points,
+    empty_map,
+    map_layers,
+    sub_grid,
+    update_map,
+)
 from vla_gr.core.gr_field.physics import (
     christoffel_conformal,
     conformal_log_factor,
@@ -126,6 +134,9 @@ class GRField(nn.Module):
         self.config = config
         self.grid = centred_grid(config.map_size, config.cell_size)
         self.register_buffer("map_state", torch.zeros(0, 4, *self.grid.shape), persistent=False)
+        #: obstacle points per sub-cell (B, 1, H * k, W * k), k = clearance_factor (k > 1 only)
+        self.sub_grid = sub_grid(self.grid, config.clearance_factor)
+        self.register_buffer("sub_hits", self._empty_sub_hits(0), persistent=False)
         self._last: dict | None = None
         #: seconds per part of the last update: mapping, masses, poisson, metric,
         #: fast_marching (inflation + travel time + gradient), path (the features and the full
@@ -138,10 +149,16 @@ class GRField(nn.Module):
     def num_channels(self) -> int:
         return len(FEATURE_NAMES)
 
+    def _empty_sub_hits(self, batch: int) -> torch.Tensor:
+        """Zero sub-cell counts (B, 1, H * k, W * k); (B, 1, 0, 0) when k = 1 (not kept)."""
+        shape = self.sub_grid.shape if self.config.clearance_factor > 1 else (0, 0)
+        return torch.zeros(batch, 1, *shape, device=self.map_state.device)
+
     def reset(self, batch_indices=None) -> None:
         """Clear the map of the given batch elements (all, and forget the batch size, if None)."""
         if batch_indices is None:
             self.map_state = torch.zeros(0, 4, *self.grid.shape, device=self.map_state.device)
+            self.sub_hits = self._empty_sub_hits(0)
             self._last = None
             return
         idx = torch.as_tensor(batch_indices, dtype=torch.long).reshape(-1)
@@ -150,6 +167,7 @@ class GRField(nn.Module):
                 f"batch_indices {idx.tolist()} out of range for batch {self.map_state.shape[0]}"
             )
         self.map_state[idx.to(self.map_state.device)] = 0.0
+        self.sub_hits[idx.to(self.map_state.device)] = 0.0
 
     # ------------------------------------------------------------------ update
 
@@ -200,6 +218,7 @@ class GRField(nn.Module):
         t0 = time.perf_counter()
         if self.map_state.shape[0] == 0:
             self.map_state = empty_map(B, self.grid, device=self.map_state.device)
+            self.sub_hits = self._empty_sub_hits(B)
         elif self.map_state.shape[0] != B:
             raise ValueError(
                 f"batch size changed from {self.map_state.shape[0]} to {B}; call reset() first"
@@ -216,6 +235,11 @@ class GRField(nn.Module):
             floor_height=cfg.floor_height, max_height=cfg.robot_height,
             robot_radius=cfg.robot_radius,
         )  # fmt: skip
+        if cfg.clearance_factor > 1:
+            count_obstacle_points(
+                self.sub_hits, self.grid, cfg.clearance_factor, points, valid,
+                cfg.floor_height, cfg.robot_height,
+            )  # fmt: skip
         self.last_timings = {"mapping": time.perf_counter() - t0}
         if goal_gate is not None:
             goal_gate = torch.as_tensor(goal_gate, device=self.map_state.device).bool()
@@ -342,8 +366,7 @@ class GRField(nn.Module):
             )
             occ = occ_np[b][win]  # (h', w') planning window
             self.planning_windows[b] = occ.shape
-            # an occupied cell may be filled up to its edge: clear its centre by radius + h / 2
-            inflated = inflate_obstacles(occ, cfg.robot_radius + 0.5 * h, h)  # (h', w')
+            inflated = self._no_fit(b, occ, win)  # (h', w')
             corner = np.array([win[1].start, win[0].start]) * h  # window's corner, metres
             for i, sources in enumerate(cand_np):
                 src = sources[b][win]  # (h', w')
@@ -365,6 +388,47 @@ class GRField(nn.Module):
             torch.from_numpy(grads).float().to(cost.device),
             torch.from_numpy(choice).to(cost.device),
         )
+
+    def _no_fit(self, b: int, occ: np.ndarray, win: tuple[slice, slice]) -> np.ndarray:
+        """Cells (h', w') of window ``win`` (occupancy ``occ`` (h', w')) of batch element ``b``
+        where the robot's centre does not fit.
+
+        An occupied cell may be filled up to its edge, so a free cell fits only when its centre
+        clears every occupied cell's centre by the radius + h / 2. With ``clearance_factor`` k
+        > 1 the test runs on sub-cells of h / k, on the obstacle points each sub-cell counted
+        (an occupied cell without any, a marked obstacle, is filled whole), with the margin of
+        a sub-cell's corner (radius + h / k / sqrt(2)): a free cell fits when any of its
+        sub-cells does, so a gap is judged by where its edges are, not by the cells they fall
+        in. Occupied cells never fit.
+        """
+        cfg, h, k = self.config, self.config.cell_size, self.config.clearance_factor
+        if k == 1:
+            return inflate_obstacles(occ, cfg.robot_radius + 0.5 * h, h)
+        rows, cols = occ.shape
+        r0, c0 = win[0].start * k, win[1].start * k
+        sub = self.sub_hits[b, 0, r0 : r0 + rows * k, c0 : c0 + cols * k].cpu().numpy() > 0
+        sub = sub.reshape(rows, k, cols, k)  # (h', k, w', k) points per sub-cell
+        filled = occ & ~sub.any(axis=(1, 3))  # (h', w') occupied cells with no point
+        sub_occ = (sub & occ[:, None, :, None]) | filled[:, None, :, None]  # (h', k, w', k)
+        sub_occ = sub_occ.reshape(rows * k, cols * k)
+        no_fit = inflate_obstacles(sub_occ, cfg.robot_radius + h / k / math.sqrt(2.0), h / k)
+        return occ | no_fit.reshape(rows, k, cols, k).all(axis=(1, 3))
+
+    def add_obstacle_evidence(self, cells: torch.Tensor, hits: float, index: int = 0) -> None:
+        """Add ``hits`` (negative: take back) of obstacle evidence to the distinct ``cells``
+        (D, 2) as (row, col) of batch element ``index``, and to each of their sub-cells;
+        counts stay >= 0."""
+        occ = self.map_state[index, OCC_HITS]  # (H, W)
+        occ[cells[:, 0], cells[:, 1]] += hits
+        occ.clamp_(min=0.0)
+        k = self.config.clearance_factor
+        if k > 1:
+            offs = torch.arange(k, device=cells.device)  # (k,)
+            rows = (cells[:, 0, None] * k + offs)[:, :, None]  # (D, k, 1)
+            cols = (cells[:, 1, None] * k + offs)[:, None, :]  # (D, 1, k)
+            sub = self.sub_hits[index, 0]  # (H * k, W * k)
+            sub[rows, cols] += hits
+            sub.clamp_(min=0.0)
 
     def _waypoints(self, travel, grads, robot_xy, pose):
         """Resample the descent path at ``waypoint_spacing``: (B, K, 2) robot frame, (B,), (B,)."""
