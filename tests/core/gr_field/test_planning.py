@@ -382,3 +382,14 @@ def test_sub_cells_count_the_same_points_and_marked_obstacles_fill_them():
     assert torch.equal(field.sub_hits, before[0]) and torch.equal(field.map_state, before[1])
     with pytest.raises(ValueError, match="clearance_factor"):
         GRFieldConfig(clearance_factor=0)
+
+
+def test_a_clearance_margin_closes_the_gap_the_sub_cells_opened():
+    whole = (slice(0, 64), slice(0, 64))
+    fields = [GRField(map_size=64, clearance_factor=3, clearance_margin=m) for m in (0.0, 0.05)]
+    for field in fields:
+        field.update(obs_of((0.0, 0.0, 0.0)))
+    occ = _wall_with_gap(fields[0], 60, 71)  # the 0.50 m gap: 0.07 m to spare on each side
+    _wall_with_gap(fields[1], 60, 71)
+    assert not fields[0]._no_fit(0, occ, whole)[:, 30].all()
+    assert fields[1]._no_fit(0, occ, whole)[:, 30].all()  # 0.05 m more than that: closed

@@ -66,6 +66,9 @@ class GRFieldConfig:
     # centre fits in a cell is judged at cell_size / clearance_factor (1: at the cells
     # themselves); a gap a few cells wide is then not closed by where its edges fall in cells
     clearance_factor: int = 1
+    # with clearance_factor > 1: room (m) the robot's centre must also keep from the obstacle
+    # points on sub-cells (the follower drives near the cells' centres, not the sub-cell's)
+    clearance_margin: float = 0.0
 
     def __post_init__(self) -> None:
         for key in ("map_size", "ego_size", "num_waypoints", "clearance_factor"):
@@ -92,6 +95,7 @@ class GRFieldConfig:
         for key in (
             "goal_mass", "frontier_mass", "frontier_mass_goal_seen", "obstacle_density",
             "beta", "kappa", "robot_radius", "frontier_min_distance", "planning_margin",
+            "clearance_margin",
         ):  # fmt: skip
             if getattr(self, key) < 0:
                 raise ValueError(f"gr_field.{key}={getattr(self, key)} must be >= 0")

@@ -397,9 +397,9 @@ class GRField(nn.Module):
         clears every occupied cell's centre by the radius + h / 2. With ``clearance_factor`` k
         > 1 the test runs on sub-cells of h / k, on the obstacle points each sub-cell counted
         (an occupied cell without any, a marked obstacle, is filled whole), with the margin of
-        a sub-cell's corner (radius + h / k / sqrt(2)): a free cell fits when any of its
-        sub-cells does, so a gap is judged by where its edges are, not by the cells they fall
-        in. Occupied cells never fit.
+        a sub-cell's corner (radius + h / k / sqrt(2), + ``clearance_margin``): a free cell
+        fits when any of its sub-cells does, so a gap is judged by where its edges are, not by
+        the cells they fall in. Occupied cells never fit.
         """
         cfg, h, k = self.config, self.config.cell_size, self.config.clearance_factor
         if k == 1:
@@ -411,7 +411,8 @@ class GRField(nn.Module):
         filled = occ & ~sub.any(axis=(1, 3))  # (h', w') occupied cells with no point
         sub_occ = (sub & occ[:, None, :, None]) | filled[:, None, :, None]  # (h', k, w', k)
         sub_occ = sub_occ.reshape(rows * k, cols * k)
-        no_fit = inflate_obstacles(sub_occ, cfg.robot_radius + h / k / math.sqrt(2.0), h / k)
+        radius = cfg.robot_radius + h / k / math.sqrt(2.0) + cfg.clearance_margin
+        no_fit = inflate_obstacles(sub_occ, radius, h / k)
         return occ | no_fit.reshape(rows, k, cols, k).all(axis=(1, 3))
 
     def add_obstacle_evidence(self, cells: torch.Tensor, hits: float, index: int = 0) -> None:
