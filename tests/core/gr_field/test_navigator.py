@@ -519,33 +519,6 @@ def test_the_relation_check_rejects_a_goal_without_its_anchor_mapped_near():
     assert plans[1].stop and nav.stop_evidence["anchor_cells"] == 0
 
 
-def test_a_relation_goal_is_turned_at_to_look_for_its_anchor_before_it_is_rejected():
-    near = (ROOM[1] - 0.6, 0.0, 0.0)
-    depth = room_depth(near)
-    like = wall_goal(depth)
-    n = depth.shape[1]
-    beside = np.zeros_like(like)
-    beside[:, n // 2 + 4 : n // 2 + 8] = (like.sum(1) > 0)[:, None]
-    nav = make_nav(look_around_angle=0.0, stop_distance=0.8, relation_distance=0.2,
-                   relation_look_steps=3)  # fmt: skip
-    pose = np.array(near, np.float32)
-
-    def tick(anchor):
-        return nav.plan({"depth": depth, "pose": pose}, like, 1.0, 1.0, None, anchor)
-
-    nothing = np.zeros_like(like)
-    plans = [tick(nothing) for _ in range(4)]  # confirmed on tick 2, then 3 ticks of looking
-    assert [p.mode for p in plans[1:]] == ["verify"] * 3 and nav.rejections == 0
-    assert all(p.command[0] == 0.0 and p.command[1] > 0.0 for p in plans[1:])  # on the spot
-    assert not tick(nothing).stop and nav.rejections == 1  # no anchor after the look: rejected
-    assert nav.rejection_log[0]["reason"] == "relation" and nav.anchor_looks == 0
-    # the anchor comes into view while looking: the goal stops
-    nav = make_nav(look_around_angle=0.0, stop_distance=0.8, relation_distance=0.2,
-                   relation_look_steps=30)  # fmt: skip
-    plans = [tick(nothing), tick(nothing), tick(beside), tick(beside)]
-    assert plans[1].mode == "verify" and plans[3].stop and nav.rejections == 0
-
-
 @pytest.mark.parametrize(
     "overrides, key",
     [
@@ -554,7 +527,6 @@ def test_a_relation_goal_is_turned_at_to_look_for_its_anchor_before_it_is_reject
         ({"object_reject_threshold": -0.1}, "object_reject_threshold"),
         ({"object_ticks": 0}, "object_ticks"),
         ({"relation_distance": -1.0}, "relation_distance"),
-        ({"relation_look_steps": -1}, "relation_look_steps"),
     ],
 )
 def test_room_check_settings_out_of_range_name_the_key(overrides, key):

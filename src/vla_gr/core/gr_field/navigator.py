@@ -29,9 +29,8 @@ STOP also needs the goal head's per-frame "goal visible" probability, seen from 
 goal that never reaches it within ``verify_steps`` is rejected: its cells lose their votes and
 cast none again, and the robot explores on. Goal checks
 (:mod:`vla_gr.core.gr_field.goal_checks`): near a confirmed goal, the room the robot stands in,
-the category the goal pixels show and, for a relation, an anchor mapped near the goal (looked
-for first by turning on the spot, ``relation_look_steps``) can reject it the same way. The
-same happens to a dead end: a goal whose path
+the category the goal pixels show and, for a relation, an anchor mapped near the goal can
+reject it the same way. The same happens to a dead end: a goal whose path
 ends where the robot stands but which is not in line of sight within the stop distance (the
 head fired on something behind furniture or a wall), which would otherwise hold the robot
 there until the step budget runs out. Blocked: the plan wanted to drive ahead (its pursuit
@@ -108,9 +107,6 @@ class NavigatorConfig:
     # cells like goal pixels do; near a confirmed goal, reject it when no anchor cell (votes on
     # confirm_ticks ticks) lies within this distance of the goal's cells
     relation_distance: float = 0.0  # m; 0 = off
-    # before a goal fails the relation check, turn in place this long at it to look for the
-    # anchor (it may be beside or behind the robot); 0 = reject at once
-    relation_look_steps: int = 0
     confirm_ticks: int = 2  # ticks with goal votes before a cell is a goal
     min_goal_pixels: int = 3  # goal pixels for "the goal is in view now"
     stop_distance: float = 0.8  # m from the robot centre to a confirmed goal cell
@@ -169,7 +165,7 @@ class NavigatorConfig:
             if int(getattr(self, key)) < 1:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 1")
         for key in ("recover_back_steps", "recover_turn_steps", "dead_end_steps",
-                    "trap_recoveries", "relation_look_steps"):  # fmt: skip
+                    "trap_recoveries"):  # fmt: skip
             if int(getattr(self, key)) < 0:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 0")
         for key in ("turn_rate", "recover_back_speed", "pixel_threshold", "tight_speed"):
@@ -241,7 +237,6 @@ class Navigator:
         self.recover_left = 0
         self.verify_count = 0
         self.dead_end_count = 0
-        self.anchor_looks = 0  # ticks spent looking for the anchor at the committed goal
         self.no_path_count = 0
         self.recoveries = 0
         self.recovery_spots: list[np.ndarray] = []  # (2,) where recent recoveries started
@@ -350,11 +345,6 @@ class Navigator:
         near = distance <= (cfg.stop_distance_at_end if at_end else cfg.stop_distance)
         if self.committed and near:
             failed = self.checks.failed(lambda: self._goal_component(nearest))
-            if failed == "relation" and self.anchor_looks < self.steps_to_ticks(
-                cfg.relation_look_steps
-            ):
-                self.anchor_looks += 1  # turn on the spot: the anchor may be out of view
-                return self._command_plan("verify", (0.0, cfg.turn_rate))
             if failed is not None:
                 return self._abandon_goal(nearest, failed)
             verified = float(goal_visible) >= cfg.stop_visible_threshold
@@ -422,7 +412,6 @@ class Navigator:
         )
         self.rejected |= goal
         self.goal_votes[goal] = 0
-        self.anchor_looks = 0
         self.checks.goal_rejected()
         self.committed = False
         self.rejections += 1
