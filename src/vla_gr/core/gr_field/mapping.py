@@ -33,14 +33,6 @@ def centred_grid(size: int, cell_size: float) -> GridSpec:
     return GridSpec(origin_x=-half, origin_y=-half, cell_size=cell_size, height=size, width=size)
 
 
-def sub_grid(grid: GridSpec, factor: int) -> GridSpec:
-    """``grid`` with each cell split into ``factor`` x ``factor`` sub-cells (same extent)."""
-    return GridSpec(
-        origin_x=grid.origin_x, origin_y=grid.origin_y, cell_size=grid.cell_size / factor,
-        height=grid.height * factor, width=grid.width * factor,
-    )  # fmt: skip
-
-
 def empty_map(batch: int, grid: GridSpec, device=None) -> torch.Tensor:
     """Zero evidence (B, 4, H, W) float32."""
     return torch.zeros(batch, NUM_MAP_CHANNELS, grid.height, grid.width, device=device)
@@ -59,12 +51,18 @@ def _scatter(
 ) -> None:
     """Add (or max, ``reduce="amax"``) ``values`` (B, N) at points ``xy`` (B, N, 2) where
     ``mask`` (B, N) into ``channel`` of ``state`` (B, C, H, W), in place."""
-    B, C = state.shape[:2]
-    HW = grid.height * grid.width
     cells, inside = points_to_cells(xy, grid)  # (B, N, 2), (B, N)
-    keep = mask & inside  # (B, N)
+    _scatter_cells(state, cells, mask & inside, channel, values, reduce)
+
+
+def _scatter_cells(
+    state: torch.Tensor, cells, keep, channel: int, values, reduce: str = "sum"
+) -> None:
+    """Add (or max) ``values`` (B, N) at in-bounds ``cells`` (B, N, 2) as (row, col) where
+    ``keep`` (B, N) into ``channel`` of ``state`` (B, C, H, W), in place."""
+    B, C, H, W = state.shape
     batch = torch.arange(B, device=state.device)[:, None]  # (B, 1)
-    flat = batch * (C * HW) + channel * HW + cells[..., 0] * grid.width + cells[..., 1]  # (B, N)
+    flat = batch * (C * H * W) + channel * H * W + cells[..., 0] * W + cells[..., 1]  # (B, N)
     view = state.view(-1)  # (B*C*H*W,)
     view.scatter_reduce_(0, flat[keep], values[keep].to(state.dtype), reduce=reduce)
 
@@ -218,7 +216,6 @@ def count_obstacle_points(
     """Add the obstacle-band points (B, N, 3) to the counts ``hits`` (B, 1, H * k, W * k) of the
     sub-cells that ``factor`` k splits each of ``grid``'s cells into (in place). A point lands
     in a sub-cell of the cell :func:`update_map` puts it in, whatever the rounding."""
-    B = hits.shape[0]
     k, h = factor, grid.cell_size
     points = points.to(hits.dtype)  # as update_map reads them
     xy = points[..., :2]  # (B, N, 2)
@@ -232,10 +229,7 @@ def count_obstacle_points(
         dim=-1,
     )  # (B, N, 2) position within the cell, [0, 1)
     sub = cells * k + (offset * k).floor().long().clamp(0, k - 1)  # (B, N, 2) sub-cell
-    width = grid.width * k
-    batch = torch.arange(B, device=hits.device)[:, None]  # (B, 1)
-    flat = batch * (grid.height * k * width) + sub[..., 0] * width + sub[..., 1]  # (B, N)
-    hits.view(-1).index_add_(0, flat[keep], torch.ones_like(flat[keep], dtype=hits.dtype))
+    _scatter_cells(hits, sub, keep, 0, torch.ones_like(points[..., 2]))
 
 
 def map_layers(state: torch.Tensor, min_hits: float = 1.0) -> dict[str, torch.Tensor]:

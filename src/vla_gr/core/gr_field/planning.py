@@ -39,7 +39,6 @@ from vla_gr.core.gr_field.mapping import (
     count_obstacle_points,
     empty_map,
     map_layers,
-    sub_grid,
     update_map,
 )
 from vla_gr.core.gr_field.physics import (
@@ -135,7 +134,6 @@ class GRField(nn.Module):
         self.grid = centred_grid(config.map_size, config.cell_size)
         self.register_buffer("map_state", torch.zeros(0, 4, *self.grid.shape), persistent=False)
         #: obstacle points per sub-cell (B, 1, H * k, W * k), k = clearance_factor (k > 1 only)
-        self.sub_grid = sub_grid(self.grid, config.clearance_factor)
         self.register_buffer("sub_hits", self._empty_sub_hits(0), persistent=False)
         self._last: dict | None = None
         #: seconds per part of the last update: mapping, masses, poisson, metric,
@@ -151,7 +149,8 @@ class GRField(nn.Module):
 
     def _empty_sub_hits(self, batch: int) -> torch.Tensor:
         """Zero sub-cell counts (B, 1, H * k, W * k); (B, 1, 0, 0) when k = 1 (not kept)."""
-        shape = self.sub_grid.shape if self.config.clearance_factor > 1 else (0, 0)
+        k = self.config.clearance_factor
+        shape = (self.grid.height * k, self.grid.width * k) if k > 1 else (0, 0)
         return torch.zeros(batch, 1, *shape, device=self.map_state.device)
 
     def reset(self, batch_indices=None) -> None:
@@ -396,7 +395,8 @@ class GRField(nn.Module):
         An occupied cell may be filled up to its edge, so a free cell fits only when its centre
         clears every occupied cell's centre by the radius + h / 2. With ``clearance_factor`` k
         > 1 the test runs on sub-cells of h / k, on the obstacle points each sub-cell counted
-        (an occupied cell without any, a marked obstacle, is filled whole), with the margin of
+        (an occupied cell without any, evidence written to the map directly, is filled whole;
+        :meth:`add_obstacle_evidence` fills the sub-cells too), with the margin of
         a sub-cell's corner (radius + h / k / sqrt(2), + ``clearance_margin``): a free cell
         fits when any of its sub-cells does, so a gap is judged by where its edges are, not by
         the cells they fall in. Occupied cells never fit.
