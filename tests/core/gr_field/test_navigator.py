@@ -519,6 +519,34 @@ def test_the_relation_check_rejects_a_goal_without_its_anchor_mapped_near():
     assert plans[1].stop and nav.stop_evidence["anchor_cells"] == 0
 
 
+def test_an_anchor_read_on_the_goal_itself_is_not_its_anchor_when_the_anchor_must_outvote_it():
+    near = (ROOM[1] - 0.6, 0.0, 0.0)  # facing the +x wall, 0.6 m away
+    depth = room_depth(near)
+    like = wall_goal(depth)  # the goal: columns n/2-3 .. n/2+2 of the wall
+    n = depth.shape[1]
+    on_goal = np.zeros_like(like)
+    on_goal[:, n // 2 - 1 : n // 2 + 1] = like[:, n // 2 - 1 : n // 2 + 1]  # its own pixels
+    beside = np.zeros_like(like)
+    beside[:, n // 2 + 5 : n // 2 + 9] = (like.sum(1) > 0)[:, None]  # the wall right of it
+
+    def run(anchor, outvote):
+        nav = make_nav(look_around_angle=0.0, stop_distance=0.8, relation_distance=0.2,
+                       anchor_outvotes_goal=outvote)  # fmt: skip
+        pose = np.array(near, np.float32)
+        plans = [nav.plan({"depth": depth, "pose": pose}, like, 1.0, 1.0, None, anchor)
+                 for _ in range(2)]  # fmt: skip
+        return nav, plans
+
+    nav, plans = run(on_goal, outvote=False)  # counted as an anchor at distance 0
+    assert plans[1].stop and nav.stop_evidence["anchor_distance"] == 0.0
+    nav, plans = run(on_goal, outvote=True)  # the goal's cells stay the goal's: no anchor
+    assert not plans[1].stop and nav.rejection_log[0]["reason"] == "relation"
+    assert nav.rejections == 1
+    nav, plans = run(beside, outvote=True)  # a real neighbour still counts
+    assert plans[1].stop and nav.stop_evidence["anchor_distance"] <= 0.2
+    assert nav.stop_evidence["anchor_cells"] > 0
+
+
 @pytest.mark.parametrize(
     "overrides, key",
     [
@@ -532,3 +560,26 @@ def test_the_relation_check_rejects_a_goal_without_its_anchor_mapped_near():
 def test_room_check_settings_out_of_range_name_the_key(overrides, key):
     with pytest.raises(ValueError, match=f"model.navigator.{key}"):
         NavigatorConfig(**overrides)
+
+
+def test_a_goal_read_where_the_anchor_was_read_more_often_is_the_anchor_when_the_goal_yields():
+    near = (ROOM[1] - 0.6, 0.0, 0.0)  # facing the +x wall, 0.6 m away
+    depth = room_depth(near)
+    like = wall_goal(depth)  # the goal head's pixels on the wall, and the segmenter's anchor
+
+    def run(yields):
+        nav = make_nav(look_around_angle=0.0, stop_distance=0.8, relation_distance=1.0,
+                       visible_threshold=0.5, goal_yields_to_anchor=yields)  # fmt: skip
+        pose = np.array(near, np.float32)
+        # the anchor is read there on three ticks, the goal on the last two (the first is
+        # below visible_threshold: no goal votes)
+        plans = [nav.plan({"depth": depth, "pose": pose}, like, visible, 1.0, None, like)
+                 for visible in (0.0, 1.0, 1.0)]  # fmt: skip
+        return nav, plans
+
+    nav, plans = run(yields=False)  # two goal ticks confirm it; the anchor is "right there"
+    assert plans[2].stop and nav.stop_evidence["anchor_distance"] == 0.0
+    nav, plans = run(yields=True)  # the anchor's cells: no goal to stop at
+    assert not any(p.stop for p in plans) and not nav.committed
+    assert not nav.checks.confirmed_goal(nav.goal_votes).any()
+    assert nav.goal_votes.max() == 2  # the votes are kept: only the cells' owner changed

@@ -7,7 +7,8 @@ and asks it, near a confirmed goal, whether the goal must be rejected:
   in a room of the instructed type is below ``room_reject_threshold``;
 - object: the mean over the last ``object_ticks`` ticks with evidence of the probability that
   the goal pixels show the instructed category is below ``object_reject_threshold``;
-- relation: no anchor cell (anchor pixels landed in it on ``confirm_ticks`` ticks) lies within
+- relation: no anchor cell (anchor pixels landed in it on ``confirm_ticks`` ticks; with
+  ``anchor_outvotes_goal`` also on more ticks than goal pixels did) lies within
   ``relation_distance`` of the goal's cells.
 
 A threshold or distance of 0 switches its check off; the STOP evidence records all three.
@@ -71,37 +72,58 @@ class GoalChecks:
             and float(np.mean(self.object_matches)) < threshold
         )
 
-    def anchor_distance(self, goal: np.ndarray) -> float | None:
+    def anchor_cells(self, goal_votes: np.ndarray) -> np.ndarray:
+        """(H, W) bool: the mapped anchor, given the ticks with goal pixels per cell
+        ``goal_votes`` (H, W). With ``anchor_outvotes_goal`` a cell where goal pixels landed
+        at least as often is the goal's (a few of its pixels read as the anchor), not the
+        anchor's."""
+        anchor = self.anchor_votes >= self.config.confirm_ticks  # (H, W)
+        if self.config.anchor_outvotes_goal:
+            anchor &= self.anchor_votes > goal_votes
+        return anchor
+
+    def confirmed_goal(self, goal_votes: np.ndarray) -> np.ndarray:
+        """(H, W) bool: the confirmed goal cells, given the ticks with goal pixels per cell
+        ``goal_votes`` (H, W): ``confirm_ticks`` of them; with ``goal_yields_to_anchor`` a
+        cell where anchor pixels landed on more ticks is the anchor's (the goal head read the
+        anchor, e.g. the table of "the chair next to the table"), not the goal's."""
+        confirmed = goal_votes >= self.config.confirm_ticks  # (H, W)
+        if self.config.goal_yields_to_anchor and self.has_anchor:
+            confirmed &= self.anchor_votes <= goal_votes
+        return confirmed
+
+    def anchor_distance(self, goal: np.ndarray, goal_votes: np.ndarray) -> float | None:
         """Metres (between cell centres) from the ``goal`` cells (H, W) bool to the nearest
-        anchor cell: inf when none is mapped, None when the instruction names no anchor."""
+        anchor cell (:meth:`anchor_cells` of ``goal_votes``): inf when none is mapped, None
+        when the instruction names no anchor."""
         if not self.has_anchor:
             return None
-        anchor = self.anchor_votes >= self.config.confirm_ticks  # (H, W)
+        anchor = self.anchor_cells(goal_votes)  # (H, W)
         if not anchor.any() or not goal.any():
             return math.inf
         to_anchor = ndimage.distance_transform_edt(~anchor)  # (H, W) cells to the anchor
         return float(to_anchor[goal].min()) * self.cell_size
 
-    def no_anchor_near(self, goal: np.ndarray) -> bool:
+    def no_anchor_near(self, goal: np.ndarray, goal_votes: np.ndarray) -> bool:
         distance = self.config.relation_distance
         if distance <= 0.0:
             return False
-        found = self.anchor_distance(goal)
+        found = self.anchor_distance(goal, goal_votes)
         return found is not None and found > distance + 1e-9
 
-    def failed(self, goal: Callable[[], np.ndarray]) -> str | None:
+    def failed(self, goal: Callable[[], np.ndarray], goal_votes: np.ndarray) -> str | None:
         """The first check the goal near the robot fails ("room", "object", "relation"), or
         None; ``goal()`` gives its cells (H, W) (computed only when the relation check needs
-        them)."""
+        them), ``goal_votes`` (H, W) the ticks with goal pixels per cell."""
         if self.wrong_room():
             return "room"
         if self.wrong_object():
             return "object"
-        return "relation" if self.no_anchor_near(goal()) else None
+        return "relation" if self.no_anchor_near(goal(), goal_votes) else None
 
-    def evidence(self, goal: np.ndarray | None) -> dict:
+    def evidence(self, goal: np.ndarray | None, goal_votes: np.ndarray) -> dict:
         """The checks' inputs at a STOP (None where a check had none)."""
-        distance = None if goal is None else self.anchor_distance(goal)
+        distance = None if goal is None else self.anchor_distance(goal, goal_votes)
         return {
             "room_match": round(float(np.mean(self.room_matches)), 4),
             "object_match": (
@@ -111,5 +133,5 @@ class GoalChecks:
             "anchor_distance": (
                 None if distance is None or not math.isfinite(distance) else round(distance, 3)
             ),
-            "anchor_cells": int((self.anchor_votes >= self.config.confirm_ticks).sum()),
+            "anchor_cells": int(self.anchor_cells(goal_votes).sum()),
         }

@@ -107,6 +107,10 @@ class NavigatorConfig:
     # cells like goal pixels do; near a confirmed goal, reject it when no anchor cell (votes on
     # confirm_ticks ticks) lies within this distance of the goal's cells
     relation_distance: float = 0.0  # m; 0 = off
+    # an anchor cell also needs more ticks with anchor pixels than with goal pixels
+    anchor_outvotes_goal: bool = False
+    # a goal cell needs at least as many ticks with goal pixels as with anchor pixels
+    goal_yields_to_anchor: bool = False
     confirm_ticks: int = 2  # ticks with goal votes before a cell is a goal
     min_goal_pixels: int = 3  # goal pixels for "the goal is in view now"
     stop_distance: float = 0.8  # m from the robot centre to a confirmed goal cell
@@ -294,7 +298,7 @@ class Navigator:
         if anchor_likelihood is not None:
             anchor = torch.as_tensor(np.asarray(anchor_likelihood, np.float32)).reshape(1, -1)
             self.checks.add_anchor(self._pixel_cells(anchor))  # (M, 2) cells
-        confirmed = self.goal_votes >= cfg.confirm_ticks  # (H, W)
+        confirmed = self.checks.confirmed_goal(self.goal_votes)  # (H, W)
         gate = torch.from_numpy(confirmed)[None]  # (1, H, W)
         if self.tight_left > 0:
             self.tight_left -= 1
@@ -344,7 +348,7 @@ class Navigator:
         )
         near = distance <= (cfg.stop_distance_at_end if at_end else cfg.stop_distance)
         if self.committed and near:
-            failed = self.checks.failed(lambda: self._goal_component(nearest))
+            failed = self.checks.failed(lambda: self._goal_component(nearest), self.goal_votes)
             if failed is not None:
                 return self._abandon_goal(nearest, failed)
             verified = float(goal_visible) >= cfg.stop_visible_threshold
@@ -421,7 +425,7 @@ class Navigator:
         """Cells (H, W) bool of the confirmed goal with a cell centred at ``centre`` (2,)
         (metres from the grid corner), grown by ``rim`` cells; its 5 x 5 neighbourhood when
         that cell is not (or no longer) a confirmed one."""
-        confirmed = self.goal_votes >= self.config.confirm_ticks  # (H, W)
+        confirmed = self.checks.confirmed_goal(self.goal_votes)  # (H, W)
         grown = ndimage.binary_dilation(confirmed, iterations=rim) if rim else confirmed
         labels, _ = ndimage.label(grown, np.ones((3, 3), bool))
         row, col = (np.asarray(centre) / self.field.config.cell_size).astype(int)[::-1]
@@ -460,7 +464,9 @@ class Navigator:
             "max_votes": int(votes.max()) if votes.size else 0,
             "total_votes": int(votes.sum()),
             "distance": round(float(distance), 3),
-            **self.checks.evidence(None if nearest is None else self._goal_component(nearest)),
+            **self.checks.evidence(
+                None if nearest is None else self._goal_component(nearest), self.goal_votes
+            ),
             "tick": int(self.ticks),
         }
 
