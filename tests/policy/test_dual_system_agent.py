@@ -448,6 +448,34 @@ def test_relation_candidates_add_the_instructed_categorys_pixels_once_per_frame(
         np.testing.assert_allclose(model.goal_likelihood(said(text))[0], head[text], atol=1e-6)
 
 
+def test_anchor_not_goal_zeroes_the_goal_likelihood_on_the_anchors_pixels_only():
+    model = _model("model.object_category.enabled=true")
+    classes = 1 + len(model.config.object_category.categories)
+    sofa = 1 + model.config.object_category.categories.index("sofa")
+    probs = torch.zeros(1, classes, 32, 32)  # background everywhere, a sofa in the left half
+    probs[:, 0, :, 16:] = 1.0
+    probs[:, sofa, :, :16] = 1.0
+    model.object_category.probabilities = lambda rgb, depth: probs
+
+    def said(text: str) -> dict:
+        return {**_obs(), "instruction": text}
+
+    relation, plain = said("find the chair near the sofa"), said("find the chair")
+    before = {o["instruction"]: model.goal_likelihood(o)[0] for o in (relation, plain)}
+    model.config.object_category.anchor_not_goal = True
+    after = model.goal_likelihood(relation)[0]  # (32, 32)
+    np.testing.assert_array_equal(after[:, :16], 0.0)  # the sofa's pixels: not the goal
+    np.testing.assert_allclose(after[:, 16:], before[relation["instruction"]][:, 16:], atol=1e-6)
+    assert float(before[relation["instruction"]][:, :16].max()) > 0.0
+    # no relation, or the anchor is the goal's own category: the goal head's likelihood as is
+    np.testing.assert_allclose(model.goal_likelihood(plain)[0], before[plain["instruction"]])
+    same = said("find the sofa near the sofa")
+    model.config.object_category.anchor_not_goal = False
+    head = model.goal_likelihood(same)[0]
+    model.config.object_category.anchor_not_goal = True
+    np.testing.assert_allclose(model.goal_likelihood(same)[0], head, atol=1e-6)
+
+
 def test_the_checks_read_the_instruction_once_per_episode(monkeypatch):
     import vla_gr.policy.agent as agent_module
 

@@ -73,6 +73,7 @@ INFERENCE_SETTINGS = (
     "goal_head.category_gate",
     "goal_head.test_time_flip",
     "object_category.relation_candidates",
+    "object_category.anchor_not_goal",
     "s1.kind",
     "s1.use_s2",
     "s1.depth_guard",
@@ -358,7 +359,20 @@ class VLAGRPolicy(nn.Module):
         candidate = self._relation_candidate(obs)
         if candidate is not None:  # the instructed category's pixels are candidates too
             likelihood = np.maximum(likelihood, self._segment(obs)[candidate])  # (H, W)
+        anchor = self._anchor_to_exclude(obs)
+        if anchor is not None:  # the anchor's pixels are not the goal's
+            anchor_pixels = self._segment(obs)[anchor] >= self.config.navigator.pixel_threshold
+            likelihood = np.where(anchor_pixels, 0.0, likelihood).astype(np.float32)  # (H, W)
         return likelihood, self.last_goal_visible
+
+    def _anchor_to_exclude(self, obs: Mapping) -> int | None:
+        """The segmenter class of the relation's anchor when its pixels are kept out of the
+        goal likelihood (``object_category.anchor_not_goal``), else None."""
+        if self.object_category is None or not self.config.object_category.anchor_not_goal:
+            return None
+        instruction = as_instructions(obs["instruction"], "obs['instruction']")[0]
+        reading = self.read_instruction(instruction)
+        return reading.anchor if reading.anchor != reading.category else None
 
     def _relation_candidate(self, obs: Mapping) -> int | None:
         """The segmenter class whose pixels are goal candidates (``relation_candidates``: an

@@ -64,6 +64,9 @@ class ObjectCategoryConfig:
     # category is a goal candidate too (the goal likelihood is the larger of the goal head's
     # and the segmenter's), and the navigator's relation check picks among them
     relation_candidates: bool = False
+    # a relation ("the chair near the table"): pixels the segmenter reads as the anchor are
+    # not goal pixels, whatever the goal head says (it often marks the anchor too)
+    anchor_not_goal: bool = False
 
     def __post_init__(self) -> None:
         if not self.categories or len(set(self.categories)) != len(self.categories):
