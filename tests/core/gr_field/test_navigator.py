@@ -555,6 +555,7 @@ def test_an_anchor_read_on_the_goal_itself_is_not_its_anchor_when_the_anchor_mus
         ({"object_reject_threshold": -0.1}, "object_reject_threshold"),
         ({"object_ticks": 0}, "object_ticks"),
         ({"relation_distance": -1.0}, "relation_distance"),
+        ({"anchor_ticks": -1}, "anchor_ticks"),
     ],
 )
 def test_room_check_settings_out_of_range_name_the_key(overrides, key):
@@ -583,3 +584,22 @@ def test_a_goal_read_where_the_anchor_was_read_more_often_is_the_anchor_when_the
     assert not any(p.stop for p in plans) and not nav.committed
     assert not nav.checks.confirmed_goal(nav.goal_votes).any()
     assert nav.goal_votes.max() == 2  # the votes are kept: only the cells' owner changed
+
+
+@pytest.mark.parametrize("anchor_ticks, stops", [(0, True), (3, True), (4, False)])
+def test_an_anchor_needs_anchor_ticks_ticks_of_its_pixels(anchor_ticks, stops):
+    near = (ROOM[1] - 0.6, 0.0, 0.0)  # facing the +x wall, 0.6 m away
+    depth = room_depth(near)
+    like = wall_goal(depth)
+    n = depth.shape[1]
+    beside = np.zeros_like(like)
+    beside[:, n // 2 + 5 : n // 2 + 9] = (like.sum(1) > 0)[:, None]  # the wall right of it
+    nav = make_nav(look_around_angle=0.0, stop_distance=0.8, relation_distance=0.5,
+                   visible_threshold=0.5, anchor_ticks=anchor_ticks)  # fmt: skip
+    pose = np.array(near, np.float32)
+    # the anchor is seen on three ticks; the goal votes on the last two, confirmed at the third
+    plans = [nav.plan({"depth": depth, "pose": pose}, like, visible, 1.0, None, beside)
+             for visible in (0.0, 1.0, 1.0)]  # fmt: skip
+    assert plans[2].stop == stops and nav.rejections == (0 if stops else 1)
+    if not stops:
+        assert nav.rejection_log[0]["reason"] == "relation"

@@ -7,9 +7,9 @@ and asks it, near a confirmed goal, whether the goal must be rejected:
   in a room of the instructed type is below ``room_reject_threshold``;
 - object: the mean over the last ``object_ticks`` ticks with evidence of the probability that
   the goal pixels show the instructed category is below ``object_reject_threshold``;
-- relation: no anchor cell (anchor pixels landed in it on ``confirm_ticks`` ticks; with
-  ``anchor_outvotes_goal`` also on more ticks than goal pixels did) lies within
-  ``relation_distance`` of the goal's cells.
+- relation: no anchor cell (anchor pixels landed in it on ``anchor_ticks`` ticks, by default
+  ``confirm_ticks``; with ``anchor_outvotes_goal`` also on more ticks than goal pixels did)
+  lies within ``relation_distance`` of the goal's cells.
 
 A threshold or distance of 0 switches its check off; the STOP evidence records all three.
 """
@@ -77,7 +77,8 @@ class GoalChecks:
         ``goal_votes`` (H, W). With ``anchor_outvotes_goal`` a cell where goal pixels landed
         at least as often is the goal's (a few of its pixels read as the anchor), not the
         anchor's."""
-        anchor = self.anchor_votes >= self.config.confirm_ticks  # (H, W)
+        ticks = self.config.anchor_ticks or self.config.confirm_ticks
+        anchor = self.anchor_votes >= ticks  # (H, W)
         if self.config.anchor_outvotes_goal:
             anchor &= self.anchor_votes > goal_votes
         return anchor

@@ -111,6 +111,7 @@ class NavigatorConfig:
     anchor_outvotes_goal: bool = False
     # a goal cell needs at least as many ticks with goal pixels as with anchor pixels
     goal_yields_to_anchor: bool = False
+    anchor_ticks: int = 0  # ticks with anchor pixels before a cell is an anchor (0: confirm_ticks)
     confirm_ticks: int = 2  # ticks with goal votes before a cell is a goal
     min_goal_pixels: int = 3  # goal pixels for "the goal is in view now"
     stop_distance: float = 0.8  # m from the robot centre to a confirmed goal cell
@@ -169,7 +170,7 @@ class NavigatorConfig:
             if int(getattr(self, key)) < 1:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 1")
         for key in ("recover_back_steps", "recover_turn_steps", "dead_end_steps",
-                    "trap_recoveries"):  # fmt: skip
+                    "trap_recoveries", "anchor_ticks"):  # fmt: skip
             if int(getattr(self, key)) < 0:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 0")
         for key in ("turn_rate", "recover_back_speed", "pixel_threshold", "tight_speed"):
