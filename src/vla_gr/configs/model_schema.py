@@ -22,7 +22,7 @@ from vla_gr.core.dual_system.config import DualSystemConfig, S1Config
 from vla_gr.core.dual_system.pure_pursuit import PursuitConfig
 from vla_gr.core.encoders.config import EncodersConfig
 from vla_gr.core.gr_field.config import GRFieldConfig
-from vla_gr.core.gr_field.navigator import NavigatorConfig
+from vla_gr.core.gr_field.navigator_config import NavigatorConfig
 from vla_gr.core.grounding import (
     GoalHeadConfig,
     GroundingConfig,

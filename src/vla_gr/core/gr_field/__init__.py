@@ -5,12 +5,14 @@ Data flow: :mod:`.config` (``GRFieldConfig``, feature channels) -> :mod:`.mappin
 geodesics; pure maths) -> :mod:`.planning` (``GRField``: one update per planner tick,
 waypoints and egocentric features) -> :mod:`.picture` (top-down image for reports).
 :mod:`.navigator` (``Navigator``) is S2's behaviour on the field: look around, explore,
-approach, verify, recover, stop.
+approach, verify, recover, stop; :mod:`.navigator_config` its settings, :mod:`.goal_checks`
+its checks of a goal before a STOP, :mod:`.map_edits` its own marks on the map.
 """
 
 from vla_gr.core.gr_field.config import FEATURE_NAMES, GRFieldConfig
 from vla_gr.core.gr_field.mapping import update_map
-from vla_gr.core.gr_field.navigator import MODES, Navigator, NavigatorConfig, NavPlan
+from vla_gr.core.gr_field.navigator import MODES, Navigator, NavPlan
+from vla_gr.core.gr_field.navigator_config import NavigatorConfig
 from vla_gr.core.gr_field.physics import christoffel_conformal, integrate_geodesic, solve_poisson
 from vla_gr.core.gr_field.picture import render_field
 from vla_gr.core.gr_field.planning import GRField, GRFieldOutput, snap_start
