@@ -32,8 +32,9 @@ def episodes_of_kind(split: str, first: int, last: int, kind: str) -> tuple[list
         except NoEpisodeError:
             counts["no episode"] += 1
             continue
-        counts[instruction_kind(spec.instruction)] += 1
-        if instruction_kind(spec.instruction) == kind:
+        spec_kind = instruction_kind(spec.instruction)
+        counts[spec_kind] += 1
+        if spec_kind == kind:
             kept.append(spec)
     return kept, counts
 

@@ -370,8 +370,7 @@ class VLAGRPolicy(nn.Module):
         goal likelihood (``object_category.anchor_not_goal``), else None."""
         if self.object_category is None or not self.config.object_category.anchor_not_goal:
             return None
-        instruction = as_instructions(obs["instruction"], "obs['instruction']")[0]
-        reading = self.read_instruction(instruction)
+        reading = self._read_obs(obs)[0]
         return reading.anchor if reading.anchor != reading.category else None
 
     def _relation_candidate(self, obs: Mapping) -> int | None:
@@ -379,8 +378,7 @@ class VLAGRPolicy(nn.Module):
         instruction naming a category and a relation's anchor but no colour), else None."""
         if self.object_category is None or not self.config.object_category.relation_candidates:
             return None
-        instruction = as_instructions(obs["instruction"], "obs['instruction']")[0]
-        reading, has_colour = self._read(instruction)
+        reading, has_colour = self._read_obs(obs)
         if reading.category is None or reading.anchor is None or has_colour:
             return None
         return reading.category
@@ -406,6 +404,10 @@ class VLAGRPolicy(nn.Module):
         words, then the instruction reader when the agent has one); read once per episode."""
         return self._read(instruction)[0]
 
+    def _read_obs(self, obs: Mapping) -> tuple[Reading, bool]:
+        """:meth:`_read` of the instruction of one observation ``obs``."""
+        return self._read(as_instructions(obs["instruction"], "obs['instruction']")[0])
+
     def _read(self, instruction: str) -> tuple[Reading, bool]:
         """(:meth:`read_instruction`, whether ``instruction`` says a colour word), computed at
         the first S2 tick that asks and kept until :meth:`reset`: the instruction is fixed for
@@ -426,8 +428,7 @@ class VLAGRPolicy(nn.Module):
     def room_match(self, obs: Mapping) -> float:
         """S2's room check: the probability that the robot is in a room of the type the
         instruction names; 1 when it names none (or the agent has no room classifier)."""
-        instruction = as_instructions(obs["instruction"], "obs['instruction']")[0]
-        index = self.read_instruction(instruction).room
+        index = self._read_obs(obs)[0].room
         if index is None or self.room_type is None:
             return 1.0
         frame = env_obs_to_frame(obs, device=self.action_scale.device)
@@ -443,9 +444,8 @@ class VLAGRPolicy(nn.Module):
         Both None when the agent has no segmenter."""
         if self.object_category is None:
             return ObjectEvidence()
-        instruction = as_instructions(obs["instruction"], "obs['instruction']")[0]
         c = self.config.object_category
-        reading = self.read_instruction(instruction)
+        reading = self._read_obs(obs)[0]
         index, anchor = reading.category, reading.anchor
         goal = np.asarray(likelihood) >= self.config.navigator.pixel_threshold  # (H, W)
         if index is not None and int(goal.sum()) < c.min_goal_pixels:

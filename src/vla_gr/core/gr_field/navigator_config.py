@@ -39,7 +39,7 @@ class NavigatorConfig:
     object_ticks: int = 3
     # relation instructions ("the chair near the plant"): the anchor's pixels vote for map
     # cells like goal pixels do; near a confirmed goal, reject it when no anchor cell (votes on
-    # confirm_ticks ticks) lies within this distance of the goal's cells
+    # anchor_ticks ticks) lies within this distance of the goal's cells
     relation_distance: float = 0.0  # m; 0 = off
     # an anchor cell also needs more ticks with anchor pixels than with goal pixels
     anchor_outvotes_goal: bool = False
