@@ -12,7 +12,7 @@ and angular speeds; ``stop > 0`` is the STOP decision.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -54,11 +54,15 @@ class PursuitConfig:
     camera_height: float = CAMERA_HEIGHT
     hfov_deg: float = HFOV_DEG
     min_depth: float = MIN_DEPTH
+    # on a precise plan (the navigator's fine local path through a narrow gap): pursue this
+    # near along it, and check a corridor of the robot's width plus this margin
+    precise_lookahead: float = 0.3
+    precise_side_margin: float = 0.0
 
     def __post_init__(self) -> None:
         for key in (
             "max_linear_speed", "max_angular_speed", "lookahead", "arrive_distance",
-            "heading_gain", "slow_distance", "hfov_deg", "camera_height",
+            "heading_gain", "slow_distance", "hfov_deg", "camera_height", "precise_lookahead",
         ):  # fmt: skip
             if not getattr(self, key) > 0:
                 raise ValueError(f"model.pursuit.{key}={getattr(self, key)} must be > 0")
@@ -72,6 +76,8 @@ class PursuitConfig:
             raise ValueError(
                 f"model.pursuit.stop_distance={self.stop_distance} must be in [0, slow_distance)"
             )
+        if not (self.side_margin >= 0 and self.precise_side_margin >= 0):
+            raise ValueError("model.pursuit.side_margin and precise_side_margin must be >= 0")
         if not self.floor_height < self.robot_height:
             raise ValueError("model.pursuit.floor_height must be < robot_height")
 
@@ -155,6 +161,11 @@ class PurePursuit:
 
     def __init__(self, config: PursuitConfig | None = None) -> None:
         self.config = config or PursuitConfig()
+        self._precise_config = replace(
+            self.config,
+            lookahead=self.config.precise_lookahead,
+            side_margin=self.config.precise_side_margin,
+        )
         self.reset()
 
     def reset(self) -> None:
@@ -163,6 +174,7 @@ class PurePursuit:
         self._command: tuple[float, float] | None = None
         self._stop = False
         self._max_speed = 1.0
+        self._precise = False
         self.last_clearance = math.inf
 
     def set_plan(self, plan, pose) -> None:
@@ -170,6 +182,7 @@ class PurePursuit:
         pose = np.asarray(pose, dtype=np.float64)
         self._stop = bool(plan.stop)
         self._max_speed = float(getattr(plan, "max_speed", 1.0))
+        self._precise = bool(getattr(plan, "precise", False))
         self._command = None if plan.command is None else tuple(plan.command)
         wps = np.asarray(plan.waypoints, dtype=np.float64).reshape(-1, 2)  # (K, 2)
         self._world = robot_to_map(wps, pose) if len(wps) else None  # (K, 2)
@@ -178,7 +191,7 @@ class PurePursuit:
         """Action (3,) float32 = (v, w, stop) in [-1, 1] for depth (H, W[, 1]) and pose (3,).
 
         ``rgb`` is accepted for the follower protocol and not read."""
-        cfg = self.config
+        cfg = self._precise_config if self._precise else self.config
         pose = np.asarray(pose, dtype=np.float64)
         if self._stop:
             return np.array([0.0, 0.0, 1.0], np.float32)

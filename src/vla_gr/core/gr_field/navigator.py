@@ -67,6 +67,7 @@ from scipy import ndimage
 
 from vla_gr.core.gr_field.config import GRFieldConfig
 from vla_gr.core.gr_field.goal_checks import GoalChecks
+from vla_gr.core.gr_field.local_planner import LocalPlanner
 from vla_gr.core.gr_field.map_edits import MapEdits
 from vla_gr.core.gr_field.mapping import points_to_cells
 from vla_gr.core.gr_field.navigator_config import NavigatorConfig
@@ -90,6 +91,9 @@ class NavPlan:
     command: tuple[float, float] | None = None  # open-loop (v, w) fractions until the next tick
     goal_distance: float = math.inf  # m from the robot to the nearest confirmed goal cell
     max_speed: float = 1.0  # cap of the linear fraction the follower may use
+    # a fine local path (navigator.local_planner): the follower pursues nearer along it and
+    # lets the robot's width through without side margin
+    precise: bool = False
 
 
 class Navigator:
@@ -148,6 +152,14 @@ class Navigator:
         self.tick_goal_pixels = 0  # goal pixels of this tick that landed on the map
         self.stop_evidence: dict[str, float] = {}  # what S2 saw on the tick it asked to STOP
         self.checks = GoalChecks(self.config, shape, self.field.config.cell_size)
+        self.local = (
+            LocalPlanner(
+                self.field.grid, self._radius, self.config,
+                self.field_config.floor_height, self.field_config.robot_height,
+            )  # fmt: skip
+            if self.config.local_planner
+            else None
+        )
         self._tick_frame, self._projected = None, None  # this tick's depth, pose; their cells
         self.last_output = None
         self.last_latency = 0.0
@@ -202,6 +214,8 @@ class Navigator:
             self.tight_left -= 1
             if self.tight_left == 0:
                 self.field.config.robot_radius = self._radius
+        if self.local is not None:
+            self.local.observe(*self._project()[2:])
         self.map_edits.mark_visited(pose[0, :2].numpy(), cfg.visited_clear_radius)
         self.map_edits.forget_noise()
         out = self.field.update({"depth": depth, "pose": pose}, like, goal_gate=gate)
@@ -295,10 +309,13 @@ class Navigator:
         ):
             self._start_tight()
         waypoints = out.waypoints[0].numpy().astype(np.float64)  # (K, 2)
+        local = self._local_path(pose, robot_xy) if self.tight_left > 0 else None
+        if local is not None:
+            waypoints = local
         target = lookahead_target(waypoints, cfg.pursuit_lookahead)  # (2,) robot frame
         ahead = abs(math.atan2(target[1], target[0])) < cfg.drive_bearing
         self.drives.append((pose[:2].copy(), bool(ahead and np.hypot(*target) > 0.2)))
-        return NavPlan(waypoints, mode, 0.0, False)
+        return NavPlan(waypoints, mode, 0.0, False, precise=local is not None)
 
     # ------------------------------------------------------------------ pieces
 
@@ -368,9 +385,25 @@ class Navigator:
             "tick": int(self.ticks),
         }
 
+    def _local_path(self, pose: np.ndarray, robot_xy: np.ndarray) -> np.ndarray | None:
+        """The local planner's path (N, 2) in the robot frame, or None (off, or no fine cell
+        gets the robot nearer)."""
+        if self.local is None:
+            return None
+        maps = self.field.last_maps
+        path = self.local.plan(
+            robot_xy, maps["travel"][0].numpy(), maps["occupied"][0].numpy()
+        )  # (N, 2) from the grid corner
+        if path is None:
+            return None
+        d = path - robot_xy  # (N, 2) map-frame offsets
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        return np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], axis=-1)
+
     def _project(self):
-        """This tick's pixels on the map: (cells (1, N, 2), usable (1, N)), usable = a valid
-        depth reading that lands inside the grid; computed once per tick."""
+        """This tick's pixels on the map: (cells (1, N, 2), usable (1, N), points (1, N, 3),
+        valid (1, N)), usable = a valid depth reading that lands inside the grid; computed
+        once per tick."""
         if self._projected is not None:
             return self._projected
         depth, pose = self._tick_frame  # (1, H, W), (1, 3)
@@ -380,7 +413,7 @@ class Navigator:
             fcfg.min_depth, fcfg.max_depth,
         )  # (1, N, 3), (1, N)  # fmt: skip
         cells, inside = points_to_cells(points[..., :2], self.field.grid)  # (1, N, 2), (1, N)
-        self._projected = (cells, valid & inside)
+        self._projected = (cells, valid & inside, points, valid)
         return self._projected
 
     def _pixel_cells(self, probability: torch.Tensor) -> np.ndarray:
@@ -389,7 +422,7 @@ class Navigator:
         hits = probability >= self.config.pixel_threshold  # (1, N)
         if not bool(hits.any()):
             return np.zeros((0, 2), np.int64)
-        cells, usable = self._project()
+        cells, usable = self._project()[:2]
         keep = hits & usable  # (1, N)
         rc = np.unique(cells[keep].numpy(), axis=0) if bool(keep.any()) else cells[0, :0].numpy()
         return rc[~self.rejected[rc[:, 0], rc[:, 1]]]

@@ -89,13 +89,24 @@ class NavigatorConfig:
     # one stray point never closes a door for good
     noise_max_hits: float = 2.0
     noise_free_ratio: float = 4.0
+    # while planning thin: re-plan the way out at the real radius on fine cells of the depth
+    # points (:mod:`vla_gr.core.gr_field.local_planner`); the follower then keeps closer to
+    # the path and lets the robot's width (without side margin) through
+    local_planner: bool = False
+    local_cell: float = 0.025  # m, fine cell side (a whole fraction of the field's cell)
+    local_window: float = 2.0  # m, half side of the fine window around the robot
+    local_margin: float = 0.02  # m the robot's edge keeps from obstacle points
+    local_start_radius: float = 0.1  # m around the robot that is free whatever its clearance
+    local_clearance_cost: float = 2.0  # extra cost per metre at the clearance limit
+    local_min_progress: float = 0.3  # m nearer in the field's travel time, else no local plan
 
     def __post_init__(self) -> None:
         for key in ("look_around_angle", "stop_distance", "stuck_distance", "blocked_distance",
                     "stop_distance_at_end", "path_end_distance",
                     "virtual_obstacle_radius", "virtual_obstacle_hits",
                     "visited_clear_radius", "tight_radius", "trap_radius",
-                    "trap_obstacle_radius", "relation_distance"):  # fmt: skip
+                    "trap_obstacle_radius", "relation_distance", "local_margin",
+                    "local_start_radius", "local_clearance_cost", "local_min_progress"):  # fmt: skip
             if not getattr(self, key) >= 0:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 0")
         for key in ("confirm_ticks", "min_goal_pixels", "verify_steps", "stuck_steps",
@@ -107,6 +118,9 @@ class NavigatorConfig:
                     "trap_recoveries", "anchor_ticks"):  # fmt: skip
             if int(getattr(self, key)) < 0:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 0")
+        for key in ("local_cell", "local_window"):
+            if not getattr(self, key) > 0:
+                raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be > 0")
         for key in ("turn_rate", "recover_back_speed", "pixel_threshold", "tight_speed"):
             if not 0.0 < getattr(self, key) <= 1.0:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be in (0, 1]")

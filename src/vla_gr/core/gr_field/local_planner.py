@@ -1,0 +1,117 @@
+"""A fine local planner for gaps the coarse map cannot resolve (``navigator.local_planner``).
+
+The GR field plans on 0.15 m cells, so a gap a few centimetres wider than the robot is either
+closed (at the real radius) or opened for a robot much thinner than the real one (the
+navigator's ``tight_radius``), whose path then runs into the furniture it hugs. This planner
+keeps the obstacle points of every depth frame on fine cells (``local_cell``, 0.025 m by
+default) and, while the navigator plans thin, re-plans the way out at the real radius:
+
+1. a window of ``local_window`` metres around the robot; a fine cell is free when it is
+   farther than ``robot_radius + local_margin`` from every obstacle point (coarse occupied
+   cells without any point, the navigator's marked obstacles, are filled whole);
+2. fast marching from the robot over the free fine cells, slower near obstacles
+   (``local_clearance_cost``), gives the local travel time D;
+3. the coarse field's travel time T to the goal or frontier (the thin robot's plan) scores
+   each reachable fine cell by D + T; the best cell, if it gets the robot at least
+   ``local_min_progress`` metres nearer in T, is the local target, and the path descends D
+   from it back to the robot.
+
+Unseen fine cells count as free (the depth check of the follower still guards).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from scipy import ndimage
+
+from vla_gr.core.gr_field.mapping import count_obstacle_points
+from vla_gr.geometry.fast_marching import extract_path, geodesic_distance
+from vla_gr.geometry.grid import GridSpec
+
+__all__ = ["LocalPlanner"]
+
+
+class LocalPlanner:
+    """Fine obstacle points of one episode and the local re-plan on them (batch 1).
+
+    Args:
+        grid: the coarse map's grid; the fine cells split each of its cells k x k,
+            k = round(cell_size / local_cell).
+        robot_radius: metres, the real robot's.
+        config: the navigator's config (its ``local_*`` settings and obstacle band are read).
+        floor_height, robot_height: the obstacle band of the depth points (metres).
+    """
+
+    def __init__(self, grid: GridSpec, robot_radius: float, config, floor_height, robot_height):
+        self.grid = grid
+        self.config = config
+        self.k = max(1, round(grid.cell_size / config.local_cell))
+        self.cell = grid.cell_size / self.k  # metres per fine cell
+        self.radius = robot_radius + config.local_margin
+        self.band = (floor_height, robot_height)
+        self.hits = torch.zeros(1, 1, grid.height * self.k, grid.width * self.k)
+
+    def reset(self) -> None:
+        self.hits.zero_()
+
+    def observe(self, points: torch.Tensor, valid: torch.Tensor) -> None:
+        """Count this frame's obstacle-band points (1, N, 3) (map frame) on the fine cells."""
+        count_obstacle_points(self.hits, self.grid, self.k, points, valid, *self.band)
+
+    def plan(
+        self, robot_xy: np.ndarray, travel: np.ndarray, occupied: np.ndarray
+    ) -> np.ndarray | None:
+        """The local path (N, 2), metric from the grid corner, from the robot towards the best
+        fine cell of the window; None when no fine cell gets nearer in ``travel``.
+
+        Args:
+            robot_xy: (2,) metres from the grid's lower-left corner.
+            travel: (H, W) the coarse field's travel time (inf: unreachable or outside).
+            occupied: (H, W) bool, the coarse occupied cells.
+        """
+        cfg, k, f = self.config, self.k, self.cell
+        n = int(math.ceil(cfg.local_window / f))
+        H, W = self.hits.shape[-2:]
+        rr, rc = int(robot_xy[1] / f), int(robot_xy[0] / f)  # robot's fine cell
+        r0, r1 = max(rr - n, 0), min(rr + n + 1, H)
+        c0, c1 = max(rc - n, 0), min(rc + n + 1, W)
+        points = self.hits[0, 0, r0:r1, c0:c1].numpy() > 0  # (h, w) fine cells with points
+        rows, cols = np.arange(r0, r1) // k, np.arange(c0, c1) // k  # coarse cell of each
+        coarse_occ = occupied[np.ix_(rows, cols)]  # (h, w)
+        filled = coarse_occ & ~_any_in_cell(self.hits[0, 0].numpy() > 0, k)[np.ix_(rows, cols)]
+        obstacle = points | filled  # (h, w)
+        clearance = ndimage.distance_transform_edt(~obstacle) * f  # (h, w) metres
+        free = clearance > self.radius
+        here = (rr - r0, rc - c0)
+        yy, xx = np.ogrid[r0:r1, c0:c1]
+        near = (yy - rr) ** 2 + (xx - rc) ** 2 <= (cfg.local_start_radius / f) ** 2
+        free |= near & ~obstacle  # the robot may leave where it stands
+        # slower near obstacles: 1 + local_clearance_cost at the limit, 1 from 0.15 m beyond
+        cost = 1.0 + cfg.local_clearance_cost * np.clip(1.0 - (clearance - self.radius) / 0.15, 0, 1)
+        source = np.zeros_like(free)
+        source[here] = True
+        D = geodesic_distance(cost, source, ~free, f)  # (h, w)
+        T = travel[np.ix_(rows, cols)]  # (h, w) coarse travel time of each fine cell
+        score = D + T
+        if not np.isfinite(score).any():
+            return None
+        best = np.unravel_index(np.nanargmin(np.where(np.isfinite(score), score, np.nan)), D.shape)
+        t_here = travel[rr // k, rc // k]
+        progress = (t_here - T[best]) if np.isfinite(t_here) else math.inf
+        if progress < cfg.local_min_progress or D[best] < cfg.local_min_progress:
+            return None
+        start = (np.array([best[1], best[0]]) + 0.5) * f  # (2,) metric within the window
+        path = extract_path(D, start, f, 0.5)  # (N, 2) from the target back to the robot
+        if len(path) < 2:
+            return None
+        corner = np.array([c0, r0]) * f
+        return np.asarray(path)[::-1] + corner  # (N, 2) robot -> target, from the grid corner
+
+
+def _any_in_cell(fine: np.ndarray, k: int) -> np.ndarray:
+    """(H, W) bool: coarse cells with any true fine cell of ``fine`` (H * k, W * k)."""
+    H, W = fine.shape[0] // k, fine.shape[1] // k
+    return fine.reshape(H, k, W, k).any(axis=(1, 3))
