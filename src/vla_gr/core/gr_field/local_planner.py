@@ -90,7 +90,8 @@ class LocalPlanner:
         near = (yy - rr) ** 2 + (xx - rc) ** 2 <= (cfg.local_start_radius / f) ** 2
         free |= near & ~obstacle  # the robot may leave where it stands
         # slower near obstacles: 1 + local_clearance_cost at the limit, 1 from 0.15 m beyond
-        cost = 1.0 + cfg.local_clearance_cost * np.clip(1.0 - (clearance - self.radius) / 0.15, 0, 1)
+        spare = np.clip(1.0 - (clearance - self.radius) / 0.15, 0.0, 1.0)  # (h, w)
+        cost = 1.0 + cfg.local_clearance_cost * spare
         source = np.zeros_like(free)
         source[here] = True
         D = geodesic_distance(cost, source, ~free, f)  # (h, w)

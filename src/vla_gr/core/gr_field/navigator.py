@@ -154,8 +154,11 @@ class Navigator:
         self.checks = GoalChecks(self.config, shape, self.field.config.cell_size)
         self.local = (
             LocalPlanner(
-                self.field.grid, self._radius, self.config,
-                self.field_config.floor_height, self.field_config.robot_height,
+                self.field.grid,
+                self._radius,
+                self.config,
+                self.field_config.floor_height,
+                self.field_config.robot_height,
             )  # fmt: skip
             if self.config.local_planner
             else None

@@ -106,7 +106,8 @@ class NavigatorConfig:
                     "virtual_obstacle_radius", "virtual_obstacle_hits",
                     "visited_clear_radius", "tight_radius", "trap_radius",
                     "trap_obstacle_radius", "relation_distance", "local_margin",
-                    "local_start_radius", "local_clearance_cost", "local_min_progress"):  # fmt: skip
+                    "local_start_radius", "local_clearance_cost",
+                    "local_min_progress"):  # fmt: skip
             if not getattr(self, key) >= 0:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 0")
         for key in ("confirm_ticks", "min_goal_pixels", "verify_steps", "stuck_steps",
