@@ -9,12 +9,13 @@ default) and, while the navigator plans thin, re-plans the way out at the real r
 1. a window of ``local_window`` metres around the robot; a fine cell is free when it is
    farther than ``robot_radius + local_margin`` from every obstacle point (coarse occupied
    cells without any point, the navigator's marked obstacles, are filled whole);
-2. fast marching from the robot over the free fine cells, slower near obstacles
-   (``local_clearance_cost``), gives the local travel time D;
+2. fast marching from the robot over the free fine cells gives the path length L to each;
 3. the coarse field's travel time T to the goal or frontier (the thin robot's plan) scores
-   each reachable fine cell by D + T; the best cell, if it gets the robot at least
-   ``local_min_progress`` metres nearer in T, is the local target, and the path descends D
-   from it back to the robot.
+   each reachable fine cell on the window's rim, and each source of the field (T = 0)
+   inside it, by L + T; the best, if it gets the robot at least ``local_min_progress``
+   metres nearer in T, is the local target;
+4. the path to it descends a second fast-marching field from the robot, slower near
+   obstacles (``local_clearance_cost``), so it runs through the middle of a gap.
 
 Unseen fine cells count as free (the depth check of the follower still guards).
 """
@@ -94,16 +95,24 @@ class LocalPlanner:
         cost = 1.0 + cfg.local_clearance_cost * spare
         source = np.zeros_like(free)
         source[here] = True
-        D = geodesic_distance(cost, source, ~free, f)  # (h, w)
+        # the target by length (a cost above 1 would make stopping short of a gap look best),
+        # the way to it by cost (through the middle of the gap)
+        length = geodesic_distance(1.0, source, ~free, f)  # (h, w) metres
         T = travel[np.ix_(rows, cols)]  # (h, w) coarse travel time of each fine cell
-        score = D + T
-        if not np.isfinite(score).any():
+        # targets: the window's rim, or the field's own sources (T = 0: a goal or frontier
+        # inside the window); an inner cell would win on T's coarse steps alone
+        rim = np.zeros_like(free)
+        rim[:2], rim[-2:], rim[:, :2], rim[:, -2:] = True, True, True, True
+        target = (rim | (T == 0.0)) & np.isfinite(length + T)
+        score = np.where(target, length + T, np.nan)  # (h, w)
+        if np.isnan(score).all():
             return None
-        best = np.unravel_index(np.nanargmin(np.where(np.isfinite(score), score, np.nan)), D.shape)
+        best = np.unravel_index(np.nanargmin(score), score.shape)
         t_here = travel[rr // k, rc // k]
         progress = (t_here - T[best]) if np.isfinite(t_here) else math.inf
-        if progress < cfg.local_min_progress or D[best] < cfg.local_min_progress:
+        if progress < cfg.local_min_progress or length[best] < cfg.local_min_progress:
             return None
+        D = geodesic_distance(cost, source, ~free, f)  # (h, w) travel cost from the robot
         start = (np.array([best[1], best[0]]) + 0.5) * f  # (2,) metric within the window
         path = extract_path(D, start, f, 0.5)  # (N, 2) from the target back to the robot
         if len(path) < 2:

@@ -1,0 +1,134 @@
+"""The fine local planner: gaps judged at the real radius on fine cells, and its follower mode."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from vla_gr.core.dual_system.pure_pursuit import PurePursuit, PursuitConfig
+from vla_gr.core.gr_field import GRFieldConfig
+from vla_gr.core.gr_field.local_planner import LocalPlanner
+from vla_gr.core.gr_field.mapping import centred_grid
+from vla_gr.core.gr_field.navigator import Navigator, NavigatorConfig, NavPlan
+from vla_gr.geometry.camera import box_room_depth
+
+CELL, SIZE = 0.15, 48  # coarse map: 7.2 m side
+WALL_Y = 3.6  # m from the grid corner: a wall across the map with one gap
+
+
+def wall_planner(gap: float, **overrides) -> tuple[LocalPlanner, np.ndarray]:
+    """A planner whose fine cells hold a wall of points at WALL_Y with a ``gap`` (m) centred
+    at x = 3.6, and the wall points' positions (P, 2) from the grid corner."""
+    cfg = NavigatorConfig(local_planner=True, **overrides)
+    planner = LocalPlanner(centred_grid(SIZE, CELL), 0.18, cfg, 0.1, 1.2)
+    f = planner.cell
+    cols = np.arange(planner.hits.shape[-1])
+    centres = (cols + 0.5) * f  # (W,) fine cell centres, metres
+    wall = cols[np.abs(centres - 3.6) > gap / 2 + 0.5 * f]  # the gap is at least `gap` wide
+    row = int(WALL_Y / f)
+    planner.hits[0, 0, row, wall] = 1.0
+    points = np.stack([(wall + 0.5) * f, np.full(len(wall), (row + 0.5) * f)], axis=-1)
+    return planner, points
+
+
+def travel_upwards() -> np.ndarray:
+    """Coarse travel time (H, W) to the top edge, through the gap for cells below the wall
+    (a thin robot's field: it knows the gap, not whether the real robot fits)."""
+    centres = (np.arange(SIZE) + 0.5) * CELL
+    x, y = np.meshgrid(centres, centres)  # (H, W) each
+    above = SIZE * CELL - y
+    below = SIZE * CELL - WALL_Y + np.hypot(x - 3.6, y - WALL_Y)
+    return np.where(y > WALL_Y, above, below)
+
+
+def test_a_gap_wider_than_the_robot_plus_margin_is_passed_with_that_clearance():
+    planner, wall = wall_planner(gap=0.50)
+    robot = np.array([3.0, WALL_Y - 1.0])  # below the wall, off the gap's axis
+    path = planner.plan(robot, travel_upwards(), np.zeros((SIZE, SIZE), bool))
+    assert path is not None
+    assert np.linalg.norm(path[0] - robot) < planner.cell  # starts at the robot
+    assert path[-1, 1] > WALL_Y + 0.3  # through the gap
+    gaps = np.linalg.norm(path[:, None] - wall[None], axis=-1).min(axis=1)  # (N,)
+    assert gaps.min() >= planner.radius - planner.cell  # never nearer than radius + margin
+
+
+def test_a_gap_narrower_than_the_robot_plus_margin_is_not_passed():
+    planner, _ = wall_planner(gap=0.36)  # exactly the robot's width: no margin left
+    robot = np.array([3.0, WALL_Y - 1.0])
+    path = planner.plan(robot, travel_upwards(), np.zeros((SIZE, SIZE), bool))
+    assert path is None or path[:, 1].max() < WALL_Y - planner.radius + planner.cell
+
+
+def test_a_marked_obstacle_without_points_closes_the_gap():
+    planner, _ = wall_planner(gap=0.50)
+    occupied = np.zeros((SIZE, SIZE), bool)
+    occupied[int(WALL_Y / CELL), int(3.6 / CELL)] = True  # a coarse cell in the gap, no points
+    robot = np.array([3.0, WALL_Y - 1.0])
+    path = planner.plan(robot, travel_upwards(), occupied)
+    assert path is None or path[:, 1].max() < WALL_Y
+
+
+def test_no_local_plan_without_progress_in_the_travel_time():
+    planner, _ = wall_planner(gap=0.50, local_min_progress=0.3)
+    robot = np.array([3.0, WALL_Y - 1.0])
+    flat = np.full((SIZE, SIZE), 5.0)  # no cell is nearer the goal than another
+    assert planner.plan(robot, flat, np.zeros((SIZE, SIZE), bool)) is None
+
+
+def test_observed_depth_points_land_on_the_fine_cells_of_their_position():
+    planner, _ = wall_planner(gap=0.50)
+    planner.reset()
+    grid = centred_grid(SIZE, CELL)
+    xyz = torch.tensor([[[0.51, -0.26, 0.5], [0.2, 0.2, 0.02]]])  # an obstacle point, floor
+    planner.observe(xyz, torch.ones(1, 2, dtype=torch.bool))
+    hits = planner.hits[0, 0]
+    assert hits.sum() == 1.0  # the floor point is not an obstacle
+    r = int((-0.26 - grid.origin_y) / planner.cell)
+    c = int((0.51 - grid.origin_x) / planner.cell)
+    assert hits[r, c] == 1.0
+
+
+def test_the_navigator_follows_a_precise_local_path_only_while_planning_thin():
+    fcfg = GRFieldConfig(map_size=64, cell_size=0.15, ego_size=16)
+    for enabled in (False, True):
+        nav = Navigator(NavigatorConfig(look_around_angle=0.0, local_planner=enabled), fcfg)
+        pose = np.array([0.0, 0.0, 0.0], np.float32)
+        obs = {"depth": box_room_depth(pose, (-3.0, 3.0, -2.0, 2.0), 32, 79.0, 0.88)[..., None]}
+        obs["pose"] = pose
+        blank = np.zeros((32, 32), np.float32)
+        assert not nav.plan(obs, blank).precise
+        nav._start_tight()
+        plan = nav.plan(obs, blank)
+        assert plan.precise == enabled
+        if enabled:
+            assert np.hypot(*plan.waypoints[0]) < 0.1  # robot frame, from the robot
+            assert len(plan.waypoints) > 2
+
+
+def test_the_follower_lets_the_robot_width_through_on_a_precise_plan_only():
+    cfg = PursuitConfig()
+    follower = PurePursuit(cfg)
+    # a box room whose side walls are 0.20 m from the centre: inside the 0.23 m half corridor
+    # of the normal check, outside the robot's 0.18 m of the precise one
+    depth = box_room_depth(np.zeros(3), (-3.0, 3.0, -0.20, 0.20), 32, 79.0, 0.88)[..., None]
+    straight = np.array([[0.5, 0.0], [1.0, 0.0], [1.5, 0.0]])  # (K, 2) straight ahead
+    speeds = {}
+    for precise in (False, True):
+        follower.set_plan(NavPlan(straight, "explore", 1.0, False, precise=precise), np.zeros(3))
+        speeds[precise] = float(follower.act(depth, np.zeros(3))[0])
+    assert speeds[False] == 0.0 and speeds[True] > 0.5
+
+
+@pytest.mark.parametrize(
+    "key, value", [("local_cell", 0.0), ("local_window", -1.0), ("local_margin", -0.1)]
+)
+def test_local_settings_out_of_range_name_the_key(key, value):
+    with pytest.raises(ValueError, match=f"navigator.{key}"):
+        NavigatorConfig(**{key: value})
+
+
+def test_a_negative_precise_side_margin_is_refused():
+    with pytest.raises(ValueError, match="precise_side_margin"):
+        PursuitConfig(precise_side_margin=-0.01)
+    assert math.isclose(PursuitConfig().precise_lookahead, 0.3)
