@@ -82,7 +82,9 @@ class LocalPlanner:
         points = self.hits[0, 0, r0:r1, c0:c1].numpy() > 0  # (h, w) fine cells with points
         rows, cols = np.arange(r0, r1) // k, np.arange(c0, c1) // k  # coarse cell of each
         coarse_occ = occupied[np.ix_(rows, cols)]  # (h, w)
-        filled = coarse_occ & ~_any_in_cell(self.hits[0, 0].numpy() > 0, k)[np.ix_(rows, cols)]
+        block = self.hits[0, 0, rows[0] * k : (rows[-1] + 1) * k, cols[0] * k : (cols[-1] + 1) * k]
+        with_points = _any_in_cell(block.numpy() > 0, k)  # (rows, cols) of the coarse block
+        filled = coarse_occ & ~with_points[np.ix_(rows - rows[0], cols - cols[0])]
         obstacle = points | filled  # (h, w)
         clearance = ndimage.distance_transform_edt(~obstacle) * f  # (h, w) metres
         free = clearance > self.radius

@@ -40,7 +40,9 @@ is marked in front (the path then bends around it), the robot backs up and turns
 than ``stuck_distance`` over ``stuck_steps`` in explore/approach: back up and turn. No path
 for ``no_path_steps``: the virtual obstacles are forgotten (they may close a door); if there
 are none, the field plans for a thinner robot (``tight_radius``, at ``tight_speed``) for
-``tight_steps``; after that, back up and turn. Trapped (``trap_recoveries`` recoveries within
+``tight_steps``; with ``local_planner`` the way out is then re-planned at the real radius on
+fine cells of the depth points (:mod:`vla_gr.core.gr_field.local_planner`) and followed as a
+precise plan; after that, back up and turn. Trapped (``trap_recoveries`` recoveries within
 ``trap_radius`` of one another: planning thinner and forgetting virtual obstacles keep sending
 the robot into the same gap): the way ahead is closed for good by an obstacle that is never
 forgotten, or, with ``trap_rejects_goal``, a committed goal is rejected instead.
