@@ -17,7 +17,8 @@ default) and, while the navigator plans thin, re-plans the way out at the real r
 4. the path to it descends a second fast-marching field from the robot, slower near
    obstacles (``local_clearance_cost``), so it runs through the middle of a gap.
 
-Unseen fine cells count as free (the depth check of the follower still guards).
+Unseen fine cells count as free (the depth check of the follower still guards). A plan is
+followed for up to ``local_replan_ticks`` ticks while the robot keeps to it.
 """
 
 from __future__ import annotations
@@ -54,9 +55,35 @@ class LocalPlanner:
         self.radius = robot_radius + config.local_margin
         self.band = (floor_height, robot_height)
         self.hits = torch.zeros(1, 1, grid.height * self.k, grid.width * self.k)
+        self._path: np.ndarray | None = None  # (N, 2) the path being followed
+        self._age = 0  # ticks it has been followed
 
     def reset(self) -> None:
         self.hits.zero_()
+        self.forget()
+
+    def forget(self) -> None:
+        """Drop the path being followed (the next :meth:`follow` plans anew)."""
+        self._path, self._age = None, 0
+
+    def follow(
+        self, robot_xy: np.ndarray, travel: np.ndarray, occupied: np.ndarray
+    ) -> np.ndarray | None:
+        """The path to follow this tick, (N, 2) from the grid corner, or None: the last plan's
+        rest while it is younger than ``local_replan_ticks``, the robot within
+        ``local_off_path`` of it and its end still ``local_min_progress`` away; else a new
+        :meth:`plan` (arguments as there)."""
+        cfg = self.config
+        if self._path is not None and self._age < cfg.local_replan_ticks:
+            gaps = np.linalg.norm(self._path - robot_xy, axis=-1)  # (N,)
+            rest = self._path[int(np.argmin(gaps)) :]  # (M, 2)
+            ahead = float(np.linalg.norm(rest[-1] - robot_xy))
+            on_path = gaps.min() <= cfg.local_off_path and len(rest) > 1
+            if on_path and ahead >= cfg.local_min_progress:
+                self._age += 1
+                return rest
+        self._path, self._age = self.plan(robot_xy, travel, occupied), 1
+        return self._path
 
     def observe(self, points: torch.Tensor, valid: torch.Tensor) -> None:
         """Count this frame's obstacle-band points (1, N, 3) (map frame) on the fine cells."""
@@ -116,7 +143,7 @@ class LocalPlanner:
             return None
         D = geodesic_distance(cost, source, ~free, f)  # (h, w) travel cost from the robot
         start = (np.array([best[1], best[0]]) + 0.5) * f  # (2,) metric within the window
-        path = extract_path(D, start, f, 0.5)  # (N, 2) from the target back to the robot
+        path = extract_path(D, start, f, 1.0)  # (N, 2) from the target back to the robot
         if len(path) < 2:
             return None
         corner = np.array([c0, r0]) * f

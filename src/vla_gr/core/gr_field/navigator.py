@@ -396,7 +396,7 @@ class Navigator:
         if self.local is None:
             return None
         maps = self.field.last_maps
-        path = self.local.plan(
+        path = self.local.follow(
             robot_xy, maps["travel"][0].numpy(), maps["occupied"][0].numpy()
         )  # (N, 2) from the grid corner
         if path is None:
@@ -510,6 +510,8 @@ class Navigator:
                 self._give_up(pose, nearest)
         self.positions.clear()
         self.drives.clear()
+        if self.local is not None:
+            self.local.forget()
         if mark:
             heading = np.array([math.cos(pose[2]), math.sin(pose[2])])
             centre = pose[:2] + cfg.virtual_obstacle_distance * heading  # (2,) map frame

@@ -94,11 +94,13 @@ class NavigatorConfig:
     # the path and lets the robot's width (without side margin) through
     local_planner: bool = False
     local_cell: float = 0.025  # m, fine cell side (a whole fraction of the field's cell)
-    local_window: float = 2.0  # m, half side of the fine window around the robot
+    local_window: float = 1.5  # m, half side of the fine window around the robot
     local_margin: float = 0.02  # m the robot's edge keeps from obstacle points
     local_start_radius: float = 0.1  # m around the robot that is free whatever its clearance
     local_clearance_cost: float = 2.0  # extra cost per metre at the clearance limit
     local_min_progress: float = 0.3  # m nearer in the field's travel time, else no local plan
+    local_replan_ticks: int = 3  # ticks a local path is followed before it is planned anew
+    local_off_path: float = 0.15  # m off the local path: plan anew at once
 
     def __post_init__(self) -> None:
         for key in ("look_around_angle", "stop_distance", "stuck_distance", "blocked_distance",
@@ -107,12 +109,12 @@ class NavigatorConfig:
                     "visited_clear_radius", "tight_radius", "trap_radius",
                     "trap_obstacle_radius", "relation_distance", "local_margin",
                     "local_start_radius", "local_clearance_cost",
-                    "local_min_progress"):  # fmt: skip
+                    "local_min_progress", "local_off_path"):  # fmt: skip
             if not getattr(self, key) >= 0:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 0")
         for key in ("confirm_ticks", "min_goal_pixels", "verify_steps", "stuck_steps",
                     "blocked_steps", "no_path_steps", "tight_steps", "room_ticks",
-                    "object_ticks"):  # fmt: skip
+                    "object_ticks", "local_replan_ticks"):  # fmt: skip
             if int(getattr(self, key)) < 1:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 1")
         for key in ("recover_back_steps", "recover_turn_steps", "dead_end_steps",
