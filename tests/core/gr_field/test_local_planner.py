@@ -132,3 +132,25 @@ def test_a_negative_precise_side_margin_is_refused():
     with pytest.raises(ValueError, match="precise_side_margin"):
         PursuitConfig(precise_side_margin=-0.01)
     assert math.isclose(PursuitConfig().precise_lookahead, 0.3)
+
+
+def test_a_local_path_is_followed_until_it_is_stale_or_the_robot_leaves_it(monkeypatch):
+    planner, _ = wall_planner(gap=0.50, local_replan_ticks=3, local_off_path=0.15)
+    robot = np.array([3.0, WALL_Y - 1.0])
+    T, occupied = travel_upwards(), np.zeros((SIZE, SIZE), bool)
+    first = planner.follow(robot, T, occupied)
+    calls = []
+    real_plan = planner.plan
+    monkeypatch.setattr(planner, "plan", lambda *a: calls.append(1) or real_plan(*a))
+    moved = first[4]  # the robot drove a few steps along it
+    again = planner.follow(moved, T, occupied)
+    assert not calls and np.allclose(again, first[4:])  # the rest of the same path
+    planner.follow(moved, T, occupied)
+    assert not calls  # third tick of the plan
+    planner.follow(moved, T, occupied)
+    assert len(calls) == 1  # stale after local_replan_ticks: planned anew
+    planner.follow(moved + np.array([0.3, 0.0]), T, occupied)
+    assert len(calls) == 2  # off the path: planned anew at once
+    planner.forget()
+    planner.follow(moved + np.array([0.3, 0.0]), T, occupied)
+    assert len(calls) == 3
