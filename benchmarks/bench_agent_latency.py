@@ -55,7 +55,8 @@ def timed_s1(policy: VLAGRPolicy, sink: list[float]) -> None:
 
 def timed_field(policy: VLAGRPolicy, sink: dict[str, list[float]]) -> None:
     """After every navigator tick of ``policy``, append its GR-field update's stage times (ms)
-    to ``sink["field.<stage>"]``."""
+    to ``sink["field.<stage>"]``, and on ticks the local planner planned, its time to
+    ``sink["local_plan"]``."""
     navigator = policy.dual_system.navigator
     plan = navigator.plan
 
@@ -63,12 +64,17 @@ def timed_field(policy: VLAGRPolicy, sink: dict[str, list[float]]) -> None:
         out = plan(*args, **kwargs)
         for stage, seconds in navigator.field.last_timings.items():
             sink.setdefault(f"field.{stage}", []).append(seconds * 1e3)
+        local = getattr(navigator, "local", None)
+        if local is not None and local.last_plan_seconds > 0:
+            sink.setdefault("local_plan", []).append(local.last_plan_seconds * 1e3)
         return out
 
     navigator.plan = wrapper
 
 
-def measure(checkpoint: str, overrides: list[str], env_kwargs: dict, episodes: int) -> dict:
+def measure(
+    checkpoint: str, overrides: list[str], env_kwargs: dict, episodes: int, first: int = 0
+) -> dict:
     """Per-part latency quantiles (ms) and the success of each episode, for one variant."""
     policy = VLAGRPolicy.from_pretrained(checkpoint, overrides=overrides)
     network: list[float] = []
@@ -79,7 +85,7 @@ def measure(checkpoint: str, overrides: list[str], env_kwargs: dict, episodes: i
     samples: dict[str, list[float]] = {p: [] for p in PARTS}
     successes = []
     try:
-        for k in range(episodes):
+        for k in range(first, first + episodes):
             row = run_episode(env, PolicyAgent(policy), k)
             for part, values in row["latency_ms"].items():
                 samples.setdefault(part, []).extend(values)
@@ -124,7 +130,7 @@ def table(results: dict) -> str:
     ]
     for name, r in results.items():
         stages = [key for key in r if key.startswith("field.")]  # in GRField's own order
-        for part in (*PARTS, *stages):
+        for part in (*PARTS, *stages, "local_plan"):
             if part in r:
                 q = r[part]
                 lines.append(
@@ -142,6 +148,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--variant", action="append", default=[], help="name=key=value[,...]")
     parser.add_argument("--episodes", type=int, default=5)
     parser.add_argument("--split", default="val")
+    parser.add_argument("--first", type=int, default=0, help="first episode index")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--repeats", type=int, default=3, help="runs per variant (medians)")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
@@ -157,7 +164,7 @@ def main(argv: list[str] | None = None) -> dict:
         parser.error(f"--repeats={args.repeats} must be >= 1")
     results = {
         name: median_of_repeats(
-            [measure(args.checkpoint, overrides, env_kwargs, args.episodes)
+            [measure(args.checkpoint, overrides, env_kwargs, args.episodes, args.first)
              for _ in range(args.repeats)]
         )
         for name, overrides in variants.items()
@@ -165,6 +172,7 @@ def main(argv: list[str] | None = None) -> dict:
     meta = {
         "checkpoint": args.checkpoint,
         "split": args.split,
+        "first": args.first,
         "threads": args.threads,
         "repeats": args.repeats,
         "machine": describe_machine(),
@@ -175,7 +183,8 @@ def main(argv: list[str] | None = None) -> dict:
     text = (
         f"# Agent latency, batch 1, {args.threads} thread(s)\n\n"
         f"`python benchmarks/bench_agent_latency.py --checkpoint {args.checkpoint} "
-        f"--episodes {args.episodes} --split {args.split} --repeats {args.repeats}`"
+        f"--episodes {args.episodes} --first {args.first} --split {args.split} "
+        f"--repeats {args.repeats}`"
         + "".join(f" `--variant {v}`" for v in args.variant)
         + f"\n\n{machine_line(meta['machine'])}\n\n{table(results)}\n"
     )

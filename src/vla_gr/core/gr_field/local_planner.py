@@ -24,6 +24,7 @@ followed for up to ``local_replan_ticks`` ticks while the robot keeps to it.
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import torch
@@ -57,6 +58,7 @@ class LocalPlanner:
         self.hits = torch.zeros(1, 1, grid.height * self.k, grid.width * self.k)
         self._path: np.ndarray | None = None  # (N, 2) the path being followed
         self._age = 0  # ticks it has been followed
+        self.last_plan_seconds = 0.0  # time :meth:`plan` took this tick (0: did not plan)
 
     def reset(self) -> None:
         self.hits.zero_()
@@ -82,11 +84,15 @@ class LocalPlanner:
             if on_path and ahead >= cfg.local_min_progress:
                 self._age += 1
                 return rest
+        t0 = time.perf_counter()
         self._path, self._age = self.plan(robot_xy, travel, occupied), 1
+        self.last_plan_seconds = time.perf_counter() - t0
         return self._path
 
     def observe(self, points: torch.Tensor, valid: torch.Tensor) -> None:
-        """Count this frame's obstacle-band points (1, N, 3) (map frame) on the fine cells."""
+        """Count this frame's obstacle-band points (1, N, 3) (map frame) on the fine cells;
+        called once per tick, first."""
+        self.last_plan_seconds = 0.0
         count_obstacle_points(self.hits, self.grid, self.k, points, valid, *self.band)
 
     def plan(
