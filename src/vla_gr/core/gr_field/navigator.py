@@ -38,7 +38,8 @@ point within ``drive_bearing``) on every tick of the last ``blocked_steps`` cont
 the robot moved less than ``blocked_distance`` (Stubborn's collision test): a virtual obstacle
 is marked in front (the path then bends around it), the robot backs up and turns. Stuck: less
 than ``stuck_distance`` over ``stuck_steps`` in explore/approach: back up and turn. No path
-for ``no_path_steps``: the virtual obstacles are forgotten (they may close a door); if there
+for ``no_path_steps`` (a path found in between counts only once held for ``path_hold_steps``):
+the virtual obstacles are forgotten (they may close a door); if there
 are none, the field plans for a thinner robot (``tight_radius``, at ``tight_speed``) for
 ``tight_steps``; with ``local_planner`` the way out is then re-planned at the real radius on
 fine cells of the depth points (:mod:`vla_gr.core.gr_field.local_planner`) and followed as a
@@ -146,6 +147,7 @@ class Navigator:
         self.verify_count = 0
         self.dead_end_count = 0
         self.no_path_count = 0
+        self.path_streak = 0  # consecutive driving ticks with a path
         self.recoveries = 0
         self.recovery_spots: list[np.ndarray] = []  # (2,) where recent recoveries started
         self.traps = 0
@@ -292,6 +294,7 @@ class Navigator:
             return self._start_recovery(pose, mark=False, nearest=nearest)
         if not bool(out.has_path[0]):
             self.drives.append((pose[:2].copy(), False))
+            self.path_streak = 0
             self.no_path_count += 1
             if self.no_path_count >= self.steps_to_ticks(cfg.no_path_steps):
                 self.no_path_count = 0
@@ -302,7 +305,9 @@ class Navigator:
                 else:
                     return self._start_recovery(pose, mark=False, nearest=nearest)
             return self._command_plan(mode, (0.0, cfg.turn_rate))
-        self.no_path_count = 0
+        self.path_streak += 1
+        if self.path_streak >= self.steps_to_ticks(cfg.path_hold_steps):
+            self.no_path_count = 0
         # a confirmed goal the field cannot reach (it falls back to the frontier): the goal's
         # stand-off may sit in a passage the conservative inflation closes; plan thinner
         self.unreachable_count = (

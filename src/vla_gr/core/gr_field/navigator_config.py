@@ -69,6 +69,9 @@ class NavigatorConfig:
     virtual_obstacle_radius: float = 0.08  # m
     virtual_obstacle_hits: float = 100.0  # evidence count (outvotes later free evidence)
     no_path_steps: int = 8  # without a path before a recovery
+    # a path must be held this long to reset that count: a path that comes and goes tick by
+    # tick as the map changes view by view does not (1: any path resets it)
+    path_hold_steps: int = 1
     # recoveries within trap_radius of one another before the robot gives up what it heads
     # for: a committed goal is rejected (with trap_rejects_goal), else the way ahead is closed
     # for good (0 = off)
@@ -113,8 +116,8 @@ class NavigatorConfig:
             if not getattr(self, key) >= 0:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 0")
         for key in ("confirm_ticks", "min_goal_pixels", "verify_steps", "stuck_steps",
-                    "blocked_steps", "no_path_steps", "tight_steps", "room_ticks",
-                    "object_ticks", "local_replan_ticks"):  # fmt: skip
+                    "blocked_steps", "no_path_steps", "path_hold_steps", "tight_steps",
+                    "room_ticks", "object_ticks", "local_replan_ticks"):  # fmt: skip
             if int(getattr(self, key)) < 1:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 1")
         for key in ("recover_back_steps", "recover_turn_steps", "dead_end_steps",
