@@ -1,4 +1,5 @@
-"""The fine local planner: gaps judged at the real radius on fine cells, and its follower mode."""
+"""The fine local planner (gaps judged at the real radius on fine cells, its follower mode) and
+when the navigator plans thin, which is when it runs."""
 
 import math
 
@@ -30,6 +31,18 @@ def wall_planner(gap: float, **overrides) -> tuple[LocalPlanner, np.ndarray]:
     planner.hits[0, 0, row, wall] = 1.0
     points = np.stack([(wall + 0.5) * f, np.full(len(wall), (row + 0.5) * f)], axis=-1)
     return planner, points
+
+
+def room_obs() -> dict:
+    """The observation at the centre of an empty 6 x 4 m box room (32 px depth, pose 0)."""
+    pose = np.zeros(3, np.float32)
+    depth = box_room_depth(pose, (-3.0, 3.0, -2.0, 2.0), 32, 79.0, 0.88)[..., None]
+    return {"depth": depth, "pose": pose}
+
+
+def thin_navigator(**overrides) -> Navigator:
+    fcfg = GRFieldConfig(map_size=64, cell_size=0.15, ego_size=16)
+    return Navigator(NavigatorConfig(look_around_angle=0.0, **overrides), fcfg)
 
 
 def travel_upwards() -> np.ndarray:
@@ -90,12 +103,9 @@ def test_observed_depth_points_land_on_the_fine_cells_of_their_position():
 
 
 def test_the_navigator_follows_a_precise_local_path_only_while_planning_thin():
-    fcfg = GRFieldConfig(map_size=64, cell_size=0.15, ego_size=16)
     for enabled in (False, True):
-        nav = Navigator(NavigatorConfig(look_around_angle=0.0, local_planner=enabled), fcfg)
-        pose = np.array([0.0, 0.0, 0.0], np.float32)
-        obs = {"depth": box_room_depth(pose, (-3.0, 3.0, -2.0, 2.0), 32, 79.0, 0.88)[..., None]}
-        obs["pose"] = pose
+        nav = thin_navigator(local_planner=enabled)
+        obs = room_obs()
         blank = np.zeros((32, 32), np.float32)
         assert not nav.plan(obs, blank).precise
         nav._start_tight()
@@ -154,3 +164,23 @@ def test_a_local_path_is_followed_until_it_is_stale_or_the_robot_leaves_it(monke
     planner.forget()
     planner.follow(moved + np.array([0.3, 0.0]), T, occupied)
     assert len(calls) == 3
+
+
+@pytest.mark.parametrize("hold, thin", [(1, False), (9, True)])
+def test_a_path_that_comes_and_goes_resets_the_no_path_count_only_when_held(
+    hold, thin, monkeypatch
+):
+    nav = thin_navigator(no_path_steps=3, path_hold_steps=hold)
+    real_update = nav.field.update
+    flicker = iter([False, True] * 10)  # the path is lost and found tick by tick
+
+    def update(*args, **kwargs):
+        out = real_update(*args, **kwargs)
+        out.has_path = torch.tensor([next(flicker)])
+        return out
+
+    monkeypatch.setattr(nav.field, "update", update)
+    obs = room_obs()
+    for _ in range(6):
+        nav.plan(obs, np.zeros((32, 32), np.float32))
+    assert (nav.tight_left > 0) == thin  # three ticks without a path, never three in a row

@@ -603,22 +603,3 @@ def test_an_anchor_needs_anchor_ticks_ticks_of_its_pixels(anchor_ticks, stops):
     assert plans[2].stop == stops and nav.rejections == (0 if stops else 1)
     if not stops:
         assert nav.rejection_log[0]["reason"] == "relation"
-
-
-@pytest.mark.parametrize("hold, thin", [(1, False), (9, True)])
-def test_a_path_that_comes_and_goes_resets_the_no_path_count_only_when_held(
-    hold, thin, monkeypatch
-):
-    nav = make_nav(look_around_angle=0.0, no_path_steps=3, path_hold_steps=hold)
-    real_update = nav.field.update
-    flicker = iter([False, True] * 10)  # the path is lost and found tick by tick
-
-    def update(*args, **kwargs):
-        out = real_update(*args, **kwargs)
-        out.has_path = torch.tensor([next(flicker)])
-        return out
-
-    monkeypatch.setattr(nav.field, "update", update)
-    for _ in range(6):
-        tick(nav, (0.0, 0.0, 0.0))
-    assert (nav.tight_left > 0) == thin  # three ticks without a path, never three in a row
