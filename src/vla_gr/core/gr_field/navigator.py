@@ -76,7 +76,7 @@ from vla_gr.core.gr_field.mapping import points_to_cells
 from vla_gr.core.gr_field.navigator_config import NavigatorConfig
 from vla_gr.core.gr_field.planning import GRField
 from vla_gr.geometry.camera import project_depth
-from vla_gr.geometry.pose2d import lookahead_target, wrap_angle
+from vla_gr.geometry.pose2d import lookahead_target, map_to_robot, wrap_angle
 
 logger = logging.getLogger(__name__)
 
@@ -114,6 +114,17 @@ class Navigator:
         self.config = config or NavigatorConfig()
         self.field_config = field_config or GRFieldConfig()
         self.field = GRField(dataclasses.replace(self.field_config))  # its own copy
+        self.local = (
+            LocalPlanner(
+                self.field.grid,
+                self.field_config.robot_radius,
+                self.config,
+                self.field_config.floor_height,
+                self.field_config.robot_height,
+            )  # fmt: skip
+            if self.config.local_planner
+            else None
+        )  # its fine cells are allocated once and cleared per episode
         self.reset()
 
     def steps_to_ticks(self, steps: int) -> int:
@@ -156,17 +167,8 @@ class Navigator:
         self.tick_goal_pixels = 0  # goal pixels of this tick that landed on the map
         self.stop_evidence: dict[str, float] = {}  # what S2 saw on the tick it asked to STOP
         self.checks = GoalChecks(self.config, shape, self.field.config.cell_size)
-        self.local = (
-            LocalPlanner(
-                self.field.grid,
-                self._radius,
-                self.config,
-                self.field_config.floor_height,
-                self.field_config.robot_height,
-            )  # fmt: skip
-            if self.config.local_planner
-            else None
-        )
+        if self.local is not None:
+            self.local.reset()
         self._tick_frame, self._projected = None, None  # this tick's depth, pose; their cells
         self.last_output = None
         self.last_latency = 0.0
@@ -406,9 +408,7 @@ class Navigator:
         )  # (N, 2) from the grid corner
         if path is None:
             return None
-        d = path - robot_xy  # (N, 2) map-frame offsets
-        c, s = math.cos(pose[2]), math.sin(pose[2])
-        return np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], axis=-1)
+        return map_to_robot(path, np.array([*robot_xy, pose[2]]))  # both from the grid corner
 
     def _project(self):
         """This tick's pixels on the map: (cells (1, N, 2), usable (1, N), points (1, N, 3),
