@@ -9,6 +9,7 @@ import torch
 from vla_gr.envs.episodes import sample_episode
 from vla_gr.envs.instructions import TEMPLATES, parse_instruction
 from vla_gr.envs.paraphrase import (
+    FIFTH_HELD_OUT,
     FOURTH_HELD_OUT,
     HELD_OUT,
     SECOND_HELD_OUT,
@@ -94,6 +95,17 @@ def _vocabulary_words(v) -> set[str]:
             (FOURTH_HELD_OUT, v)
             for v in (HELD_OUT, TRAINING, VALIDATION, SECOND_HELD_OUT, THIRD_HELD_OUT)
         ),
+        *(
+            (FIFTH_HELD_OUT, v)
+            for v in (
+                HELD_OUT,
+                TRAINING,
+                VALIDATION,
+                SECOND_HELD_OUT,
+                THIRD_HELD_OUT,
+                FOURTH_HELD_OUT,
+            )
+        ),
     ],
     ids=[
         "training-held_out",
@@ -107,6 +119,10 @@ def _vocabulary_words(v) -> set[str]:
         "third-validation",
         "third-second",
         *(f"fourth-{v}" for v in ("held_out", "training", "validation", "second", "third")),
+        *(
+            f"fifth-{v}"
+            for v in ("held_out", "training", "validation", "second", "third", "fourth")
+        ),
     ],
 )
 def test_the_vocabularies_share_no_word(first, second):

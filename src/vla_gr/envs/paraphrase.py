@@ -14,7 +14,8 @@ instruction reader), :data:`VALIDATION` (for choosing a learned part's settings 
 wording without looking at the held-out set), :data:`SECOND_HELD_OUT` (written after
 failures on the first held-out set had been read, before any change was measured on it: a
 blind measure of a change designed on those failures) and :data:`THIRD_HELD_OUT` (the same
-for the second set's failures), and :data:`FOURTH_HELD_OUT` (the same for the third set's).
+for the second set's failures), :data:`FOURTH_HELD_OUT` (the same for the third set's) and
+:data:`FIFTH_HELD_OUT` (the same for the fourth set's).
 :data:`VOCABULARIES` names them.
 """
 
@@ -31,6 +32,7 @@ from vla_gr.envs.episodes import EpisodeSpec
 from vla_gr.envs.instructions import parse_instruction
 
 __all__ = [
+    "FIFTH_HELD_OUT",
     "FOURTH_HELD_OUT",
     "HELD_OUT",
     "SECOND_HELD_OUT",
@@ -229,6 +231,34 @@ FOURTH_HELD_OUT = Vocabulary(
     ),
 )
 
+#: A fifth held-out set, written after the fourth one's failures had been read and before any
+#: change was measured on it: no word or shape of the other six sets.
+FIFTH_HELD_OUT = Vocabulary(
+    synonyms={
+        "chair": ("barstool", "ladderback"),
+        "sofa": ("three-seater", "canape"),
+        "bed": ("bunkbed", "kingsize"),
+        "toilet": ("throne", "outhouse"),
+        "tv_monitor": ("gogglebox", "lcd"),
+        "plant": ("monstera", "peace lily"),
+        "table": ("bureau", "drop-leaf"),
+        "cabinet": ("chiffonier", "curio"),
+    },
+    room_words={"living_room": "great room", "hallway": "landing", "office": "computer room"},
+    near_words=("elbowing", "huddled round", "nuzzling"),
+    color_subject="the {noun} whose colour is {color}",
+    room_shapes=(
+        "our destination is the {room}, {subject} specifically",
+        "swing past the {room} — we want {subject}",
+        "roll over to the {room}, halt at {subject}",
+    ),
+    plain_shapes=(
+        "i'd like to stand at {subject}",
+        "beeline for {subject}",
+        "{subject}, pronto",
+    ),
+)
+
 #: The vocabularies by name (``bench_robustness.py --vocabulary``).
 VOCABULARIES: dict[str, Vocabulary] = {
     "held_out": HELD_OUT,
@@ -237,6 +267,7 @@ VOCABULARIES: dict[str, Vocabulary] = {
     "second_held_out": SECOND_HELD_OUT,
     "third_held_out": THIRD_HELD_OUT,
     "fourth_held_out": FOURTH_HELD_OUT,
+    "fifth_held_out": FIFTH_HELD_OUT,
 }
 
 #: Category -> words for it that the templates never use (the held-out set).
