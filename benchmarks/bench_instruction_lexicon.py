@@ -6,10 +6,11 @@ Instructions come from :func:`vla_gr.training.instruction_reader.reader_corpus` 
 descriptions with exact labels) in each wording: the templates, the *validation*
 paraphrase vocabulary (the settings grid, where ``word_senses``, ``room_threshold`` and
 ``category_margin`` are chosen) and the *held-out* ones (the chosen settings only, alone, with
-``locative_senses`` and with ``locative_senses`` and ``place_senses``: what is reported; the
-template and validation readings are checked to be the same with both). Per field (goal
-category, relation anchor, room type): the share of instructions where the lexicon names the
-right class, where it names a wrong one, and where every field is right. Writes
+``locative_senses``, with ``locative_senses`` and ``place_senses``, and with
+``clause_places`` too when validation chooses it: what is reported; the template readings are
+checked to be the same with all of them, the validation readings with the first three). Per
+field (goal category, relation anchor, room type): the share of instructions where the lexicon
+names the right class, where it names a wrong one, and where every field is right. Writes
 ``<out>.json`` and ``<out>.md``.
 """
 
@@ -132,6 +133,18 @@ def main() -> None:
     for name, scores in checked.items():
         if len({score["all_right"] for score in scores}) != 1:
             raise AssertionError(f"the {name} readings differ between {list(variants)}")
+    # clause_places changes validation readings: chosen there, by the same score as the grid
+    clause = InstructionLexicon(
+        InstructionLexiconConfig(
+            **settings, locative_senses=True, place_senses=True, clause_places=True
+        )
+    )
+    clause_scores = {n: reading_scores(clause, corpora[n]) for n in ("template", "validation")}
+    if clause_scores["template"] != checked["template"][0]:
+        raise AssertionError("clause_places changes template readings")
+    clause_chosen = net_right(clause_scores["validation"]) > net_right(checked["validation"][-1])
+    if clause_chosen:
+        variants[", locative_senses, place_senses, clause_places"] = clause
     held_out = {}
     for vocabulary in (v for v in VOCABULARIES if v.endswith("held_out")):
         corpus = reader_corpus(args.count, args.seed, vocabulary)
@@ -142,6 +155,9 @@ def main() -> None:
         "seed": args.seed,
         "validation_grid": rows,
         "chosen": settings,
+        "validation_place_senses": checked["validation"][-1],
+        "validation_clause_places": clause_scores["validation"],
+        "clause_places_chosen": clause_chosen,
         "template": checked["template"][0],  # the chosen settings alone
         **held_out,
         "machine": describe_machine(),
@@ -166,6 +182,15 @@ def main() -> None:
         "",
         *head,
         *(_row("validation", *(r[k] for k in settings), r) for r in rows),
+        "",
+        "With the chosen settings, `locative_senses` and `place_senses`, `clause_places` "
+        f"{'is' if clause_chosen else 'is not'} chosen on `validation` (right minus wrong "
+        f"{net_right(checked['validation'][-1]):.3f} without, "
+        f"{net_right(clause_scores['validation']):.3f} with; it changes no template reading):",
+        "",
+        *head,
+        _row("validation, place_senses", *settings.values(), checked["validation"][-1]),
+        _row("validation, clause_places", *settings.values(), clause_scores["validation"]),
         "",
         *head,
         _row("template", *settings.values(), result["template"]),

@@ -164,3 +164,43 @@ def test_place_senses_type_rooms_by_the_encoder_and_keep_the_goal_out_of_places(
     assert fields(off, "within the workspace, track down the armchair")[0] is None
     template = "find the chair in the kitchen"
     assert on.canonical(template) == template  # template instructions: unchanged
+
+
+def test_clause_places_read_a_first_noun_before_another_clause_as_where_to_look():
+    on = InstructionLexicon(
+        InstructionLexiconConfig(
+            enabled=True, word_senses=True, locative_senses=True, clause_places=True
+        ),
+        encoder=HandMadeEncoder({}),
+    )
+    off = InstructionLexicon(
+        InstructionLexiconConfig(enabled=True, word_senses=True, locative_senses=True),
+        encoder=on._encoder,
+    )
+
+    def fields(lex, text):
+        r = lex.read(text)
+        return r.category, r.room, r.anchor
+
+    # "lounge" can be a room; the armchair is in the next clause, so it is the goal
+    for text in (
+        "head for the lounge, then look for the armchair",
+        "head for the lounge; the armchair",
+        "head for the lounge \u2014 the armchair",
+        "head for the lounge and look for the armchair",
+        "head for the lounge until you spot the armchair",
+    ):
+        assert fields(on, text) == ("chair", None, None), text
+        assert fields(off, text) == ("sofa", None, "chair"), text
+    # a room of known type is named
+    assert fields(on, "reach the bedroom, then the armchair") == ("chair", "bedroom", None)
+    # one clause: a relation, as before
+    assert fields(on, "find the lounge next to the armchair") == ("sofa", None, "chair")
+    # a first noun with no sense that is a place stays the goal, whatever follows it
+    assert fields(on, "find the armchair, the one next to the couch") == ("chair", None, "sofa")
+    # only the first noun: a later one is an anchor or nothing
+    assert fields(on, "find the armchair next to the lounge, then stop") == ("chair", None, "sofa")
+    # a hyphen inside a word is no clause mark
+    assert fields(on, "find the four-poster next to the lounge")[0] == "bed"
+    template = "find the chair in the kitchen next to the table"
+    assert on.canonical(template) == template

@@ -57,6 +57,24 @@ __all__ = ["InstructionLexicon", "InstructionLexiconConfig", "LexiconReading"]
 _ARTICLES = frozenset({"the", "a", "an"})
 _LOCATIVE = frozenset({"in", "into", "inside", "within", "throughout"})  # "... the <place>"
 _WORD = re.compile(r"[a-z]+(?:'[a-z]+)?")
+# what ends a clause: punctuation between two words (not a hyphen inside one), or a conjunction
+_CLAUSE_MARK = re.compile(r"[,;:!?.\u2013\u2014]|\s-\s")
+_CONJUNCTIONS = frozenset({"and", "then", "until", "till", "before", "after", "once", "while"})
+
+
+def _words_and_clauses(text: str) -> tuple[list[str], list[int]]:
+    """The words of lower-case ``text`` and the index of the clause each one is in."""
+    words: list[str] = []
+    clauses: list[int] = []
+    clause, end = 0, 0
+    for match in _WORD.finditer(text):
+        word = match.group()
+        if words and (_CLAUSE_MARK.search(text[end : match.start()]) or word in _CONJUNCTIONS):
+            clause += 1
+        words.append(word)
+        clauses.append(clause)
+        end = match.end()
+    return words, clauses
 
 
 @dataclass
@@ -79,6 +97,11 @@ class InstructionLexiconConfig:
     # word senses; with locative_senses too, a noun after "in / into / ... the" that WordNet
     # does not know as a category is where to look, never the goal or an anchor
     place_senses: bool = False
+    # with locative_senses: a first noun that can be a room or building, followed by a noun
+    # in another clause (after "," ";" ":" a dash, or "and", "then", "until", ...), is read as
+    # where to look: a goal and its relation's anchor share a clause ("head for the lounge,
+    # then look for the seat": the lounge is a room, the seat the goal)
+    clause_places: bool = False
     room_margin: float = 0.05  # lead of the nearest room name over the next one for a place
     room_threshold: float = 0.6  # cosine similarity at which a noun can name a room type
     category_margin: float = 0.05  # lead of the nearest category over the next one to name it
@@ -238,11 +261,24 @@ class InstructionLexicon:
             return "room", named_room, used
         return "category", self._category_of(words[i]), used
 
+    def _can_be_a_place(self, words: list[str], i: int) -> bool:
+        """Whether the noun at ``words[i]`` (or its two-word phrase) has a sense that is a
+        room or building (``clause_places``, with word and locative senses)."""
+        c = self.config
+        if not (c.clause_places and c.locative_senses and self._senses is not None):
+            return False
+        phrases = (" ".join(words[i : i + span]) for span in (2, 1) if i + span <= len(words))
+        return any(
+            (role := self._senses.role(p, place=True)) is not None and role[0] in ("room", "place")
+            for p in phrases
+        )
+
     def read(self, instruction: str) -> LexiconReading:
         """The goal noun, its colour, room and relation anchor as the config names them."""
         if not isinstance(instruction, str):
             raise TypeError(f"instruction must be a str, got {type(instruction).__name__}")
-        words = _WORD.findall(instruction.lower())
+        words, clauses = _words_and_clauses(instruction.lower())
+        articles = [j for j, w in enumerate(words) if w in _ARTICLES]
         colors = [w for w in words if w in self.config.colors]
         nouns: list[tuple[str, str | None]] = []  # (word as said, category or None)
         room = room_word = None
@@ -252,11 +288,14 @@ class InstructionLexicon:
                 i += 1
                 continue
             locative = i > 0 and words[i - 1] in _LOCATIVE
+            later_clause = any(clauses[j] != clauses[i] for j in articles if j > i)
             i += 1
             while i < len(words) and words[i] in self.config.colors:
                 i += 1
             if i >= len(words):
                 break
+            if not (locative or nouns) and later_clause and self._can_be_a_place(words, i):
+                locative = True  # a goal and its anchor share a clause: this is where to look
             kind, name, used = self._role(words, i, locative)
             if kind == "room" and room is None:
                 room, room_word = name, " ".join(words[i : i + used])
