@@ -29,7 +29,11 @@ has one: "go into the lounge" names a room, though WordNet's first "lounge" is a
 encoder puts nearest, when it leads the next by ``room_margin``; a word WordNet knows as some
 other thing ("corridor": a passageway) names a room as it would without word senses; and a
 noun after a preposition of containment that WordNet does not know as a category is where to
-look, never the goal ("within the workspace, track down the couch"). An instruction in
+look, never the goal ("within the workspace, track down the couch"). With
+``clause_places``, a first noun that can be a room or building and is followed by a noun in
+another clause (after a comma, semicolon, colon or dash, or "and", "then", "until", ...) is
+read as after "into the": a goal and its relation's anchor are said in one clause, so "head
+for the lounge, then look for the seat" names no sofa next to a chair. An instruction in
 which the template readers already find what the lexicon reads comes out unchanged, so
 template instructions reach the agent exactly as before.
 
