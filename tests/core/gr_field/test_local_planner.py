@@ -82,6 +82,19 @@ def test_a_marked_obstacle_without_points_closes_the_gap():
     assert path is None or path[:, 1].max() < WALL_Y
 
 
+def test_a_lone_point_narrows_no_gap_with_local_min_hits():
+    robot = np.array([3.0, WALL_Y - 1.0])
+    paths = {}
+    for min_hits in (1, 2):
+        planner, _ = wall_planner(gap=0.50, local_min_hits=min_hits)
+        planner.hits *= 3.0  # the wall seen on three frames
+        f = planner.cell
+        planner.hits[0, 0, int(WALL_Y / f), int(3.6 / f)] = 1.0  # one stray point in the gap
+        paths[min_hits] = planner.plan(robot, travel_upwards(), np.zeros((SIZE, SIZE), bool))
+    assert paths[1] is None or paths[1][:, 1].max() < WALL_Y  # the point closes the gap
+    assert paths[2] is not None and paths[2][-1, 1] > WALL_Y + 0.3  # seen once: noise
+
+
 def test_no_local_plan_without_progress_in_the_travel_time():
     planner, _ = wall_planner(gap=0.50, local_min_progress=0.3)
     robot = np.array([3.0, WALL_Y - 1.0])
@@ -131,7 +144,8 @@ def test_the_follower_lets_the_robot_width_through_on_a_precise_plan_only():
 
 
 @pytest.mark.parametrize(
-    "key, value", [("local_cell", 0.0), ("local_window", -1.0), ("local_margin", -0.1)]
+    "key, value",
+    [("local_cell", 0.0), ("local_window", -1.0), ("local_margin", -0.1), ("local_min_hits", 0)],
 )
 def test_local_settings_out_of_range_name_the_key(key, value):
     with pytest.raises(ValueError, match=f"navigator.{key}"):

@@ -7,8 +7,9 @@ keeps the obstacle points of every depth frame on fine cells (``local_cell``, 0.
 default) and, while the navigator plans thin, re-plans the way out at the real radius:
 
 1. a window of ``local_window`` metres around the robot; a fine cell is free when it is
-   farther than ``robot_radius + local_margin`` from every obstacle point (coarse occupied
-   cells without any point, the navigator's marked obstacles, are filled whole);
+   farther than ``robot_radius + local_margin`` from every fine cell with at least
+   ``local_min_hits`` obstacle points (coarse occupied cells without any point, the
+   navigator's marked obstacles, are filled whole);
 2. fast marching from the robot over the free fine cells gives the path length L to each;
 3. the coarse field's travel time T to the goal or frontier (the thin robot's plan) scores
    each reachable fine cell on the window's rim, and each source of the field (T = 0)
@@ -112,10 +113,12 @@ class LocalPlanner:
         rr, rc = int(robot_xy[1] / f), int(robot_xy[0] / f)  # robot's fine cell
         r0, r1 = max(rr - n, 0), min(rr + n + 1, H)
         c0, c1 = max(rc - n, 0), min(rc + n + 1, W)
-        points = self.hits[0, 0, r0:r1, c0:c1].numpy() > 0  # (h, w) fine cells with points
+        min_hits = cfg.local_min_hits
+        points = self.hits[0, 0, r0:r1, c0:c1].numpy() >= min_hits  # (h, w) obstacle fine cells
         rows, cols = np.arange(r0, r1) // k, np.arange(c0, c1) // k  # coarse cell of each
         coarse_occ = occupied[np.ix_(rows, cols)]  # (h, w)
         block = self.hits[0, 0, rows[0] * k : (rows[-1] + 1) * k, cols[0] * k : (cols[-1] + 1) * k]
+        # a coarse cell with points (even too few to count) is not a marked obstacle
         with_points = _any_in_cell(block.numpy() > 0, k)  # (rows, cols) of the coarse block
         filled = coarse_occ & ~with_points[np.ix_(rows - rows[0], cols - cols[0])]
         obstacle = points | filled  # (h, w)

@@ -104,6 +104,9 @@ class NavigatorConfig:
     local_min_progress: float = 0.3  # m nearer in the field's travel time, else no local plan
     local_replan_ticks: int = 3  # ticks a local path is followed before it is planned anew
     local_off_path: float = 0.15  # m off the local path: plan anew at once
+    # depth points a fine cell needs before it is an obstacle: a lone noisy point then
+    # narrows no gap, while a real surface is seen again frame after frame
+    local_min_hits: int = 1
 
     def __post_init__(self) -> None:
         for key in ("look_around_angle", "stop_distance", "stuck_distance", "blocked_distance",
@@ -117,7 +120,8 @@ class NavigatorConfig:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 0")
         for key in ("confirm_ticks", "min_goal_pixels", "verify_steps", "stuck_steps",
                     "blocked_steps", "no_path_steps", "path_hold_steps", "tight_steps",
-                    "room_ticks", "object_ticks", "local_replan_ticks"):  # fmt: skip
+                    "room_ticks", "object_ticks", "local_replan_ticks",
+                    "local_min_hits"):  # fmt: skip
             if int(getattr(self, key)) < 1:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 1")
         for key in ("recover_back_steps", "recover_turn_steps", "dead_end_steps",
