@@ -8,6 +8,7 @@ import torch
 
 from vla_gr.envs.episodes import sample_episode
 from vla_gr.envs.instructions import TEMPLATES, parse_instruction
+from vla_gr.envs.nav_env import INSTRUCTION_MAX_LENGTH
 from vla_gr.envs.paraphrase import (
     FIFTH_HELD_OUT,
     FOURTH_HELD_OUT,
@@ -17,6 +18,7 @@ from vla_gr.envs.paraphrase import (
     THIRD_HELD_OUT,
     TRAINING,
     VALIDATION,
+    VOCABULARIES,
     paraphrase,
     paraphrase_episodes,
     paraphrase_instructions,
@@ -158,3 +160,12 @@ def test_training_rewrites_follow_the_probability_and_torchs_seed():
     half = paraphrase_instructions(texts[:-1], 0.5)
     changed = sum(new != old for new, old in zip(half, texts[:-1]))
     assert 8 <= changed <= 32  # 40 draws at p = 0.5
+
+
+@pytest.mark.parametrize("name", sorted(VOCABULARIES))
+def test_every_vocabulary_writes_episodes_the_env_accepts(name):
+    # the env refuses an instruction that is not printable ASCII (NavEnv._start_episode)
+    for spec in paraphrase_episodes(SPECS[:40], seed=0, vocabulary=VOCABULARIES[name]):
+        text = spec.instruction
+        assert text.isascii() and text.isprintable(), text
+        assert len(text) <= INSTRUCTION_MAX_LENGTH, text

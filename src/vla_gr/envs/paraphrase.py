@@ -249,7 +249,7 @@ FIFTH_HELD_OUT = Vocabulary(
     color_subject="the {noun} whose colour is {color}",
     room_shapes=(
         "our destination is the {room}, {subject} specifically",
-        "swing past the {room} — we want {subject}",
+        "swing past the {room} - we want {subject}",
         "roll over to the {room}, halt at {subject}",
     ),
     plain_shapes=(
