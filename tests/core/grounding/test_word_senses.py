@@ -130,27 +130,29 @@ def test_two_word_nouns_are_read_whole():
     assert lex.read("go to the tv next to the bed").anchor == "bed"  # names need no phrase
 
 
+def lexicons_with_and_without(words: dict, setting: str):
+    """Two lexicons with word and locative senses on one hand-made encoder: with ``setting``
+    on, and without it."""
+    base = {"enabled": True, "word_senses": True, "locative_senses": True}
+    on = InstructionLexicon(
+        InstructionLexiconConfig(**base, **{setting: True}), encoder=HandMadeEncoder(words)
+    )
+    return on, InstructionLexicon(InstructionLexiconConfig(**base), encoder=on._encoder)
+
+
+def fields(lex: InstructionLexicon, text: str) -> tuple:
+    """(category, room, anchor) as ``lex`` reads ``text``."""
+    r = lex.read(text)
+    return r.category, r.room, r.anchor
+
+
 def test_place_senses_type_rooms_by_the_encoder_and_keep_the_goal_out_of_places():
     words = {  # "lounge": as near the living room as the office
         "foyer": axis("hallway", 0.9, 0.4),  # a room of no known type, near "hallway"
         "lounge": [a + b for a, b in zip(axis("living room", 0.5, 0.7), axis("office", 0.5, 0))],
         "corridor": axis("hallway", 0.9, 0.3),  # a passageway to WordNet, a room to the encoder
     }
-    on = InstructionLexicon(
-        InstructionLexiconConfig(
-            enabled=True, word_senses=True, locative_senses=True, place_senses=True
-        ),
-        encoder=HandMadeEncoder(words),
-    )
-    off = InstructionLexicon(
-        InstructionLexiconConfig(enabled=True, word_senses=True, locative_senses=True),
-        encoder=on._encoder,
-    )
-
-    def fields(lex, text):
-        r = lex.read(text)
-        return r.category, r.room, r.anchor
-
+    on, off = lexicons_with_and_without(words, "place_senses")
     assert fields(on, "hunt through the foyer for the armchair") == ("chair", "hallway", None)
     assert fields(off, "hunt through the foyer for the armchair") == ("chair", None, None)
     # no lead of room_margin over the next room name: untyped, as before
@@ -167,21 +169,7 @@ def test_place_senses_type_rooms_by_the_encoder_and_keep_the_goal_out_of_places(
 
 
 def test_clause_places_read_a_first_noun_before_another_clause_as_where_to_look():
-    on = InstructionLexicon(
-        InstructionLexiconConfig(
-            enabled=True, word_senses=True, locative_senses=True, clause_places=True
-        ),
-        encoder=HandMadeEncoder({}),
-    )
-    off = InstructionLexicon(
-        InstructionLexiconConfig(enabled=True, word_senses=True, locative_senses=True),
-        encoder=on._encoder,
-    )
-
-    def fields(lex, text):
-        r = lex.read(text)
-        return r.category, r.room, r.anchor
-
+    on, off = lexicons_with_and_without({}, "clause_places")
     # "lounge" can be a room; the armchair is in the next clause, so it is the goal
     for text in (
         "head for the lounge, then look for the armchair",
