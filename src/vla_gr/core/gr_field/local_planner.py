@@ -113,8 +113,7 @@ class LocalPlanner:
         rr, rc = int(robot_xy[1] / f), int(robot_xy[0] / f)  # robot's fine cell
         r0, r1 = max(rr - n, 0), min(rr + n + 1, H)
         c0, c1 = max(rc - n, 0), min(rc + n + 1, W)
-        min_hits = cfg.local_min_hits
-        points = self.hits[0, 0, r0:r1, c0:c1].numpy() >= min_hits  # (h, w) obstacle fine cells
+        points = self.hits[0, 0, r0:r1, c0:c1].numpy() >= cfg.local_min_hits  # (h, w) obstacles
         rows, cols = np.arange(r0, r1) // k, np.arange(c0, c1) // k  # coarse cell of each
         coarse_occ = occupied[np.ix_(rows, cols)]  # (h, w)
         block = self.hits[0, 0, rows[0] * k : (rows[-1] + 1) * k, cols[0] * k : (cols[-1] + 1) * k]
