@@ -7,15 +7,16 @@ find ...". None of these words or sentence shapes occur in
 :data:`~vla_gr.envs.instructions.TEMPLATES`, so an agent evaluated on them meets language it
 was never trained on. :func:`paraphrase_episodes` rewrites a list of episode specs.
 
-Six vocabularies with no word or shape in common: :data:`HELD_OUT` (what robustness is
+Eight vocabularies with no word or shape in common: :data:`HELD_OUT` (what robustness is
 measured on), :data:`TRAINING` (for ``training.paraphrase_prob``: the goal head learns that
 unseen wording can name the same object, without seeing the held-out words; and for the
 instruction reader), :data:`VALIDATION` (for choosing a learned part's settings on unseen
 wording without looking at the held-out set), :data:`SECOND_HELD_OUT` (written after
 failures on the first held-out set had been read, before any change was measured on it: a
 blind measure of a change designed on those failures) and :data:`THIRD_HELD_OUT` (the same
-for the second set's failures), :data:`FOURTH_HELD_OUT` (the same for the third set's) and
-:data:`FIFTH_HELD_OUT` (the same for the fourth set's).
+for the second set's failures), :data:`FOURTH_HELD_OUT` (the same for the third set's),
+:data:`FIFTH_HELD_OUT` (the same for the fourth set's) and :data:`SIXTH_HELD_OUT` (the same
+for the fifth set's).
 :data:`VOCABULARIES` names them.
 """
 
@@ -36,6 +37,7 @@ __all__ = [
     "FOURTH_HELD_OUT",
     "HELD_OUT",
     "SECOND_HELD_OUT",
+    "SIXTH_HELD_OUT",
     "SYNONYMS",
     "THIRD_HELD_OUT",
     "TRAINING",
@@ -259,6 +261,34 @@ FIFTH_HELD_OUT = Vocabulary(
     ),
 )
 
+#: A sixth held-out set, written after the fifth one's failures had been read and before any
+#: change was measured on it: no word or shape of the other seven sets.
+SIXTH_HELD_OUT = Vocabulary(
+    synonyms={
+        "chair": ("footstool", "bench"),
+        "sofa": ("sofabed", "banquette"),
+        "bed": ("hammock", "bassinet"),
+        "toilet": ("toilet bowl", "dunny"),
+        "tv_monitor": ("crt", "vdu"),
+        "plant": ("rubber plant", "aspidistra"),
+        "table": ("gateleg", "kitchen island"),
+        "cabinet": ("filing cabinet", "highboy"),
+    },
+    room_words={"living_room": "rumpus room", "hallway": "lobby", "office": "home office"},
+    near_words=("facing", "opposite", "skirting"),
+    color_subject="the {noun}, which is {color}",
+    room_shapes=(
+        "nip to the {room} to eyeball {subject}",
+        "{subject} is over in the {room}; hurry along",
+        "poke about the {room} for {subject}",
+    ),
+    plain_shapes=(
+        "park yourself near {subject}",
+        "show me {subject}",
+        "wheel over to {subject}",
+    ),
+)
+
 #: The vocabularies by name (``bench_robustness.py --vocabulary``).
 VOCABULARIES: dict[str, Vocabulary] = {
     "held_out": HELD_OUT,
@@ -268,6 +298,7 @@ VOCABULARIES: dict[str, Vocabulary] = {
     "third_held_out": THIRD_HELD_OUT,
     "fourth_held_out": FOURTH_HELD_OUT,
     "fifth_held_out": FIFTH_HELD_OUT,
+    "sixth_held_out": SIXTH_HELD_OUT,
 }
 
 #: Category -> words for it that the templates never use (the held-out set).
