@@ -6,8 +6,9 @@ Instructions come from :func:`vla_gr.training.instruction_reader.reader_corpus` 
 descriptions with exact labels) in each wording: the templates, the *validation*
 paraphrase vocabulary (the settings grid, where ``word_senses``, ``room_threshold`` and
 ``category_margin`` are chosen) and the *held-out* ones (the chosen settings only, alone, with
-``locative_senses``, with ``locative_senses`` and ``place_senses``, and with
-``clause_places`` too when validation chooses it: what is reported; the template readings are
+``locative_senses``, with ``locative_senses`` and ``place_senses``, with
+``clause_places`` too when validation chooses it, and with ``noun_heads`` too when it changes
+no template reading and lowers no validation score: what is reported; the template readings are
 checked to be the same with all of them, the validation readings with the first three). Per
 field (goal category, relation anchor, room type): the share of instructions where the lexicon
 names the right class, where it names a wrong one, and where every field is right. Writes
@@ -17,6 +18,7 @@ names the right class, where it names a wrong one, and where every field is righ
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 from pathlib import Path
@@ -145,6 +147,15 @@ def main() -> None:
     clause_chosen = net_right(clause_scores["validation"]) > net_right(checked["validation"][-1])
     if clause_chosen:
         variants[", locative_senses, place_senses, clause_places"] = clause
+    # noun_heads reads nouns after modifiers ("the great room"), which neither the templates
+    # nor the validation words have: kept when it changes none of their readings
+    heads = InstructionLexicon(dataclasses.replace(clause.config, noun_heads=True))
+    heads_scores = {n: reading_scores(heads, corpora[n]) for n in ("template", "validation")}
+    heads_kept = heads_scores["template"] == clause_scores["template"] and net_right(
+        heads_scores["validation"]
+    ) >= net_right(clause_scores["validation"])
+    if clause_chosen and heads_kept:
+        variants[", locative_senses, place_senses, clause_places, noun_heads"] = heads
     held_out = {}
     for vocabulary in (v for v in VOCABULARIES if v.endswith("held_out")):
         corpus = reader_corpus(args.count, args.seed, vocabulary)
@@ -158,6 +169,8 @@ def main() -> None:
         "validation_place_senses": checked["validation"][-1],
         "validation_clause_places": clause_scores["validation"],
         "clause_places_chosen": clause_chosen,
+        "validation_noun_heads": heads_scores["validation"],
+        "noun_heads_kept": heads_kept,
         "template": checked["template"][0],  # the chosen settings alone
         **held_out,
         "machine": describe_machine(),
@@ -191,6 +204,12 @@ def main() -> None:
         *head,
         _row("validation, place_senses", *settings.values(), checked["validation"][-1]),
         _row("validation, clause_places", *settings.values(), clause_scores["validation"]),
+        "",
+        "`noun_heads` (a word before a noun that says which or what kind is passed over: "
+        "\"the great room\") reads phrases that neither the templates nor the validation "
+        "words have; it is kept when it changes no template reading and lowers no validation "
+        f"score: {'kept' if heads_kept else 'not kept'} (right minus wrong "
+        f"{net_right(heads_scores['validation']):.3f}).",
         "",
         *head,
         _row("template", *settings.values(), result["template"]),

@@ -192,3 +192,50 @@ def test_clause_places_read_a_first_noun_before_another_clause_as_where_to_look(
     assert fields(on, "find the four-poster next to the lounge")[0] == "bed"
     template = "find the chair in the kitchen next to the table"
     assert on.canonical(template) == template
+
+
+@pytest.mark.parametrize(
+    "first, second, modifies",
+    [
+        ("great", "room", True),  # mostly an adjective, before a room
+        ("tall", "armchair", True),
+        ("filing", "cabinet", True),  # names nothing the house has, before a category
+        ("corner", "couch", True),
+        ("sofa", "bed", False),  # a two-word noun WordNet knows: read whole
+        ("swivel", "chair", False),
+        ("kitchen", "armchair", False),  # a room's own name is no modifier
+        ("couch", "close", False),  # "close" (an end) is no physical thing
+        ("potted", "palm", False),  # nor is WordNet's first palm, a hand's
+        ("armchair", "in", False),  # "in" ends the phrase, though an inch is a noun
+    ],
+)
+def test_a_word_before_a_noun_that_says_which_or_what_kind_modifies_it(
+    senses, first, second, modifies
+):
+    assert senses.modifies(first, second) is modifies
+
+
+def test_noun_heads_read_the_noun_after_its_modifiers():
+    words = {"spare room": axis("bedroom", 0.9, 0.3)}  # a room of no type, near "bedroom"
+    on, off = lexicons_with_and_without(words, "noun_heads")
+    text = "find the tall armchair next to the corner couch"
+    assert fields(on, text) == ("chair", None, "sofa")
+    assert fields(off, text) != fields(on, text)
+    text = "find the filing cabinet in the kitchen"
+    assert fields(on, text) == ("cabinet", "kitchen", None)
+    assert fields(off, text) == (None, "kitchen", None)  # "filing" (an act) is skipped, and
+    # "cabinet" with it
+    text = "go into the spare room and find the big old armchair"
+    assert fields(on, text) == ("chair", None, None)  # the room: untyped without place_senses
+    places = InstructionLexicon(
+        InstructionLexiconConfig(**on.config.__dict__ | {"place_senses": True}),
+        encoder=on._encoder,
+    )
+    assert fields(places, text) == ("chair", "bedroom", None)  # the encoder reads "spare room"
+    assert places.read(text).room_word == "spare room"
+    # a phrase WordNet knows whole, and a noun after a colour, are read as before
+    for text in ("find the red armchair next to the sofa bed", "go to the swivel chair"):
+        assert fields(on, text) == fields(off, text), text
+    assert on.canonical("go to the big old armchair") == "find the chair"
+    for template in ("find the big chair in the kitchen", "find the red chair next to the table"):
+        assert on.canonical(template) == template  # the template readers read it the same

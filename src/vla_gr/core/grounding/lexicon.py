@@ -33,7 +33,11 @@ look, never the goal ("within the workspace, track down the couch"). With
 ``clause_places``, a first noun that can be a room or building and is followed by a noun in
 another clause (after a comma, semicolon, colon or dash, or "and", "then", "until", ...) is
 read as after "into the": a goal and its relation's anchor are said in one clause, so "head
-for the lounge, then look for the seat" names no sofa next to a chair. An instruction in
+for the lounge, then look for the seat" names no sofa next to a chair. With ``noun_heads``, a
+word between the article and the noun that says which or what kind
+(:meth:`~vla_gr.core.grounding.word_senses.WordSenses.modifies`: "the great room", "the filing
+cabinet") is passed over like a colour, and a room of no known type is read by the encoder
+with it ("great room"). An instruction in
 which the template readers already find what the lexicon reads comes out unchanged, so
 template instructions reach the agent exactly as before.
 
@@ -106,6 +110,10 @@ class InstructionLexiconConfig:
     # where to look: a goal and its relation's anchor share a clause ("head for the lounge,
     # then look for the seat": the lounge is a room, the seat the goal)
     clause_places: bool = False
+    # with word_senses: a word before a noun that is mostly an adjective, or that names no
+    # category or room while the noun does, says which or what kind: the noun after it is read
+    # ("the great room", "the filing cabinet", "the corner sofa")
+    noun_heads: bool = False
     room_margin: float = 0.05  # lead of the nearest room name over the next one for a place
     room_threshold: float = 0.6  # cosine similarity at which a noun can name a room type
     category_margin: float = 0.05  # lead of the nearest category over the next one to name it
@@ -234,11 +242,24 @@ class InstructionLexicon:
         k = _nearest_by_lead(self.similarities(word)[0], self.config.category_margin)
         return None if k is None else self.config.categories[k]
 
-    def _role(self, words: list[str], i: int, locative: bool) -> tuple[str, str | None, int]:
+    def _modifies(self, words: list[str], i: int) -> bool:
+        """Whether ``words[i]`` is said before a later noun to say which or what kind
+        (``noun_heads``: "the great room", "the big old armchair"); the noun is read."""
+        if not (self.config.noun_heads and self._senses is not None):
+            return False
+        head = i + 1  # the noun: past the modifiers that follow words[i] ("old" in "big old")
+        while head + 1 < len(words) and self._senses.modifies(words[head], words[head + 1]):
+            head += 1
+        return head < len(words) and self._senses.modifies(words[i], words[head])
+
+    def _role(
+        self, words: list[str], i: int, locative: bool, modifiers: Sequence[str] = ()
+    ) -> tuple[str, str | None, int]:
         """(kind, name, words used) of the noun at ``words[i]``: kind "room" / "category"
         (name from the config, or None for a noun kept as said) / "skip" (a place of no known
         type, or no physical thing: neither goal, anchor nor room). ``locative``: the noun
-        follows a preposition of containment."""
+        follows a preposition of containment; ``modifiers``: the words said before it, which
+        the encoder reads with a room of no known type ("the great room")."""
         c = self.config
         if self._senses is not None:
             place = locative and c.locative_senses
@@ -254,7 +275,8 @@ class InstructionLexicon:
                     return "room", c.room_types[index], span
                 if kind == "category":
                     return "category", c.categories[index], span
-                room = self._room_by_encoder(phrase, kind) if c.place_senses else None
+                said = " ".join([*modifiers, phrase])
+                room = self._room_by_encoder(said, kind) if c.place_senses else None
                 if room is not None:
                     return "room", room, span
                 if kind == "object" and not (place and c.place_senses):
@@ -294,15 +316,17 @@ class InstructionLexicon:
             locative = i > 0 and words[i - 1] in _LOCATIVE
             later_clause = any(clauses[j] != clauses[i] for j in articles if j > i)
             i += 1
-            while i < len(words) and words[i] in self.config.colors:
+            said_from = i  # where the noun phrase starts, colours and modifiers included
+            while i < len(words) and (words[i] in self.config.colors or self._modifies(words, i)):
                 i += 1
             if i >= len(words):
                 break
             if not (locative or nouns) and later_clause and self._can_be_a_place(words, i):
                 locative = True  # a goal and its anchor share a clause: this is where to look
-            kind, name, used = self._role(words, i, locative)
+            modifiers = [w for w in words[said_from:i] if w not in self.config.colors]
+            kind, name, used = self._role(words, i, locative, modifiers)
             if kind == "room" and room is None:
-                room, room_word = name, " ".join(words[i : i + used])
+                room, room_word = name, " ".join(modifiers + words[i : i + used])
             elif kind == "category" and len(nouns) < 2:
                 nouns.append((words[i], name))
             i += used

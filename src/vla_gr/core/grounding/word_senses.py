@@ -27,6 +27,12 @@ head, English compounds being right-headed: "waterbed" is a kind of bed when "wa
 "bed" are both words WordNet knows and "bed" names a category or room type; a head that names
 neither ("camelback": a back) says nothing, and the word stays unknown.
 
+``modifies(first, second)`` says whether ``first`` is a word said before the noun ``second``
+to say which one or what kind ("the *great* room", "the *filing* cabinet", "the *corner*
+sofa"): the phrase is no room, building or category WordNet knows, and ``first`` is mostly an
+adjective (more adjective senses than noun senses) and ``second`` is a physical thing, or
+``first`` names no category or room while ``second`` names one, or is a room.
+
 ``role(word, place=True)`` reads a noun the sentence puts in a place's slot ("go *into the*
 lounge"): by its most common sense that is a room or building, when it has one. WordNet's most
 common sense of "lounge" is a sofa; its second, a room with seating, is what "into the lounge"
@@ -44,6 +50,11 @@ from collections.abc import Sequence
 __all__ = ["WordSenses"]
 
 Role = tuple[str, int | None]
+# words that end a noun phrase though WordNet has a noun of their spelling ("in": an inch)
+_NOT_NOUNS = frozenset(
+    "a an the in into inside within at on by to of for from with near beside next that which "
+    "whose who is are was i it you me we us and or then".split()
+)
 _MIN_PART = 3  # letters of each part of a closed compound ("waterbed": water + bed)
 
 
@@ -78,6 +89,7 @@ class WordSenses:
         self._category_names, self._room_names = list(categories), list(room_types)
         self._classes: dict | None = None  # synset -> Role, built on the first lookup
         self._cache: dict[tuple[str, bool], Role | None] = {}
+        self._modifies: dict[tuple[str, str], bool] = {}
 
     def _build(self) -> dict:
         wn = _wordnet()
@@ -110,6 +122,31 @@ class WordSenses:
         if (word, place) not in self._cache:
             self._cache[word, place] = self._look_up(word, place)
         return self._cache[word, place]
+
+    def modifies(self, first: str, second: str) -> bool:
+        """Whether ``first`` is said before the noun ``second`` to say which or what kind of
+        thing it is (see the module docstring)."""
+        if (first, second) not in self._modifies:
+            self._modifies[first, second] = self._is_modifier(first, second)
+        return self._modifies[first, second]
+
+    def _is_modifier(self, first: str, second: str) -> bool:
+        if first in _NOT_NOUNS or second in _NOT_NOUNS or first in self._names:
+            return False
+        whole = self.role(f"{first} {second}")
+        if whole is not None and whole[0] in ("category", "room", "place"):
+            return False  # a noun of two words ("sofa bed", "sitting room"): read whole
+        wn = _wordnet()
+        if second not in self._names and not wn.synsets(second, "n"):
+            return False  # no noun
+        head, own = self.role(second), self.role(first)
+        if head is not None and head[0] == "abstract":
+            return False  # "the potted palm": WordNet's first palm is a hand's, no thing to modify
+        nouns = len(wn.synsets(first, "n"))
+        if len(wn.synsets(first, "a")) + len(wn.synsets(first, "s")) > nouns:
+            return True  # "great", "tall", "smart": mostly an adjective
+        names_something = head is not None and (head[1] is not None or head[0] == "room")
+        return names_something and (own is None or own[1] is None) and own != ("room", None)
 
     def _look_up(self, word: str, place: bool) -> Role | None:
         self.load()
