@@ -206,7 +206,7 @@ def main() -> None:
         _row("validation, clause_places", *settings.values(), clause_scores["validation"]),
         "",
         "`noun_heads` (a word before a noun that says which or what kind is passed over: "
-        "\"the great room\") reads phrases that neither the templates nor the validation "
+        '"the great room") reads phrases that neither the templates nor the validation '
         "words have; it is kept when it changes no template reading and lowers no validation "
         f"score: {'kept' if heads_kept else 'not kept'} (right minus wrong "
         f"{net_right(heads_scores['validation']):.3f}).",

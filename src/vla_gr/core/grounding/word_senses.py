@@ -52,9 +52,12 @@ __all__ = ["WordSenses"]
 Role = tuple[str, int | None]
 # words that end a noun phrase though WordNet has a noun of their spelling ("in": an inch)
 _NOT_NOUNS = frozenset(
-    "a an the in into inside within at on by to of for from with near beside next that which "
-    "whose who is are was i it you me we us and or then".split()
-)
+    {
+        "a", "an", "the", "in", "into", "inside", "within", "at", "on", "by", "to", "of", "for",
+        "from", "with", "near", "beside", "next", "that", "which", "whose", "who", "is", "are",
+        "was", "i", "it", "you", "me", "we", "us", "and", "or", "then",
+    }
+)  # fmt: skip
 _MIN_PART = 3  # letters of each part of a closed compound ("waterbed": water + bed)
 
 
