@@ -1,13 +1,15 @@
 """Success of a paraphrased run split by how S2 read each instruction.
 
-    python benchmarks/paraphrase_readings.py CLEAN_RUN PARAPHRASED_RUN
+    python benchmarks/paraphrase_readings.py [CLEAN_RUN] PARAPHRASED_RUN
 
-Both arguments are ``vla-gr eval`` output folders over the same episodes (e.g. the ``clean``
-and ``paraphrase`` runs of ``bench_robustness.py``). For each episode the fields S2 read (goal
+Both are ``vla-gr eval`` output folders over the same episodes (e.g. the ``clean`` and
+``paraphrase`` runs of ``bench_robustness.py``); without ``CLEAN_RUN`` each episode's
+template instruction is drawn again from its split and index
+(:func:`~vla_gr.envs.episodes.sample_episode`). For each episode the fields S2 read (goal
 category, relation anchor, room type in the row's ``agent.read_as``, or the paraphrase itself
 when S2 read it as it was) are compared with the fields of the template instruction the
-paraphrase was made from (the clean run's), by the template readers. Each episode falls in the
-first group that fits: a wrong room, a wrong category or anchor, a field left empty, every
+paraphrase was made from, by the template readers. Each episode falls in the first group that
+fits: a wrong room, a wrong category or anchor, a field left empty, every
 field right. Prints a markdown table.
 """
 
@@ -20,6 +22,7 @@ from pathlib import Path
 from vla_gr.core.grounding.instruction_reader import read_instruction
 from vla_gr.core.grounding.object_category import CATEGORIES
 from vla_gr.core.grounding.room_type import ROOM_TYPES
+from vla_gr.envs.episodes import sample_episode
 
 GROUPS = ("every field right", "a field left empty", "a wrong category or anchor", "a wrong room")
 
@@ -48,14 +51,21 @@ def _rows(folder: str) -> dict[int, dict]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("clean", help="eval folder of the template instructions")
-    parser.add_argument("paraphrased", help="eval folder of the same episodes paraphrased")
+    parser.add_argument(
+        "runs", nargs="+", metavar="RUN", help="[CLEAN_RUN] PARAPHRASED_RUN: eval folders"
+    )
     args = parser.parse_args()
-    clean, para = _rows(args.clean), _rows(args.paraphrased)
+    if len(args.runs) > 2:
+        parser.error(f"at most two runs (CLEAN_RUN PARAPHRASED_RUN), got {len(args.runs)}")
+    para = _rows(args.runs[-1])
+    if len(args.runs) == 2:
+        said = {i: r["spec"]["instruction"] for i, r in _rows(args.runs[0]).items()}
+    else:
+        said = {i: sample_episode(r["spec"]["split"], i).instruction for i, r in para.items()}
     counts = {g: [0, 0] for g in GROUPS}  # group -> [episodes, successes]
     for index, row in para.items():
         read = row.get("agent", {}).get("read_as") or row["spec"]["instruction"]
-        group = reading_group(clean[index]["spec"]["instruction"], read)
+        group = reading_group(said[index], read)
         counts[group][0] += 1
         counts[group][1] += int(row["metrics"]["success"] > 0)
     lines = ["| S2's reading | episodes | SR |", "|---|---|---|"]

@@ -54,3 +54,23 @@ def test_the_table_counts_episodes_and_successes(tmp_path, capsys, monkeypatch):
     assert "| every field right | 2 | 0.500 |" in out
     assert "| a wrong category or anchor | 1 | 0.000 |" in out
     assert "| a wrong room | 0 | |" in out
+
+
+def test_without_a_clean_run_the_template_instruction_is_drawn_again(tmp_path, capsys, monkeypatch):
+    from vla_gr.envs.episodes import sample_episode
+
+    said = sample_episode("val", 3).instruction
+    rows = [  # read as the template said it, and as another instruction
+        {"episode_index": 3, "spec": {"instruction": "x", "split": "val"},
+         "metrics": {"success": 1.0}, "agent": {"read_as": said}},
+        {"episode_index": 4, "spec": {"instruction": "x", "split": "val"},
+         "metrics": {"success": 0.0}, "agent": {"read_as": said}},
+    ]  # fmt: skip
+    (tmp_path / "para").mkdir()
+    (tmp_path / "para" / "episodes.jsonl").write_text("\n".join(map(json.dumps, rows)) + "\n")
+    monkeypatch.setattr("sys.argv", ["x", str(tmp_path / "para")])
+    bench.main()
+    out = capsys.readouterr().out
+    assert "| every field right | 1 | 1.000 |" in out
+    assert sample_episode("val", 4).instruction != said  # episode 4 said something else
+    assert "| every field right | 2 |" not in out
