@@ -247,10 +247,16 @@ class InstructionLexicon:
         (``noun_heads``: "the great room", "the big old armchair"); the noun is read."""
         if not (self.config.noun_heads and self._senses is not None):
             return False
-        head = i + 1  # the noun: past the modifiers that follow words[i] ("old" in "big old")
-        while head + 1 < len(words) and self._senses.modifies(words[head], words[head + 1]):
-            head += 1
-        return head < len(words) and self._senses.modifies(words[i], words[head])
+        colors, senses = self.config.colors, self._senses
+        head = i + 1  # the noun: past colours and the modifiers after words[i] ("big old red")
+        while head + 1 < len(words) and (
+            words[head] in colors
+            or (words[head + 1] not in colors and senses.modifies(words[head], words[head + 1]))
+        ):
+            head += 1  # a colour is never the noun ("the succulent painted orange")
+        if head >= len(words) or words[head] in colors:
+            return False
+        return senses.modifies(words[i], words[head])
 
     def _role(
         self, words: list[str], i: int, locative: bool, modifiers: Sequence[str] = ()
