@@ -104,7 +104,7 @@ def main() -> None:
         "--vocabulary", choices=[v for v in VOCABULARIES if v != "training"],
         default="held_out",
         help="the paraphrases' vocabulary: held_out reports, validation chooses settings, "
-        "second_held_out ... fifth_held_out measure a change designed on an earlier set's failures",
+        "second_held_out ... sixth_held_out measure a change designed on an earlier set's failures",
     )  # fmt: skip
     args = parser.parse_args()
     logging.basicConfig(level=logging.WARNING)
