@@ -142,12 +142,13 @@ class WordSenses:
         wn = _wordnet()
         if second not in self._names and not wn.synsets(second, "n"):
             return False  # no noun
-        head, own = self.role(second), self.role(first)
+        head = self.role(second)
         if head is not None and head[0] == "abstract":
             return False  # "the potted palm": WordNet's first palm is a hand's, no thing to modify
         nouns = len(wn.synsets(first, "n"))
         if len(wn.synsets(first, "a")) + len(wn.synsets(first, "s")) > nouns:
             return True  # "great", "tall", "smart": mostly an adjective
+        own = self.role(first)  # only a noun-like word's own role decides the rest
         names_something = head is not None and (head[1] is not None or head[0] == "room")
         return names_something and (own is None or own[1] is None) and own != ("room", None)
 
