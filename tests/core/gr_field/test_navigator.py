@@ -344,10 +344,12 @@ def _dead_end_setup(**overrides):
     nearest = np.array([(36 + 0.5) * h, (40 + 0.5) * h])  # (x, y) from the grid corner
     robot_xy = nav.field.last_maps["robot_xy"][0].numpy()
 
-    def decide(last_waypoint):
+    def decide(last_waypoint, reachable=True):
         waypoints = torch.tensor([[[0.05, 0.0]] * 7 + [[last_waypoint, 0.0]]])  # (1, 8, 2)
         out = SimpleNamespace(
-            has_path=torch.tensor([True]), goal_seen=torch.tensor([True]), waypoints=waypoints
+            has_path=torch.tensor([True]),
+            goal_seen=torch.tensor([reachable]),  # False: the path leads to the frontier
+            waypoints=waypoints,
         )
         # not within stop distance in line of sight: distance inf
         return nav._decide(out, pose, robot_xy, True, 1.0, math.inf, nearest)
@@ -376,6 +378,29 @@ def test_a_goal_the_robot_stands_at_the_dead_end_of_is_rejected():
         for _ in range(10):
             assert decide(last_waypoint=last).mode == "approach"
         assert nav.rejections == 0
+
+
+def test_a_goal_the_field_finds_no_way_to_for_unreachable_steps_is_rejected():
+    # tight planning starts after 2 ticks without a way; it does not restart the count
+    nav, decide = _dead_end_setup(unreachable_steps=5, no_path_steps=2)
+    for k in range(4):
+        assert decide(last_waypoint=1.5, reachable=False).mode == "approach"
+        assert nav.rejections == 0
+        assert nav.tight_left > 0 or k < 1  # planning thinner from the second tick on
+    plan = decide(last_waypoint=1.5, reachable=False)  # the fifth tick on end
+    assert plan.mode == "explore" and plan.command == (0.0, nav.config.turn_rate)
+    assert nav.rejections == 1 and nav.goal_votes.max() == 0
+    assert nav.rejected[40:42, 36:38].all()
+    assert nav.rejection_log[0]["reason"] == "unreachable"
+    # a tick with a way to the goal starts the count again; the rule off never rejects
+    nav, decide = _dead_end_setup(unreachable_steps=5)
+    for k in range(12):
+        assert decide(last_waypoint=1.5, reachable=k % 4 == 3).mode == "approach"
+    assert nav.rejections == 0
+    nav, decide = _dead_end_setup(unreachable_steps=0)
+    for _ in range(12):  # (more ticks without moving would start a recovery)
+        assert decide(last_waypoint=1.5, reachable=False).mode == "approach"
+    assert nav.rejections == 0
 
 
 def test_a_robot_trapped_in_one_spot_closes_the_way_ahead_or_rejects_its_goal():

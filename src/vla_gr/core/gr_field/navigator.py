@@ -19,7 +19,8 @@ Modes and transitions (checked in this order every tick)::
                  before either
     approach     a confirmed goal: follow the field's geodesic to its stand-off; a goal the
                  robot has stood at the end of the path to for dead_end_steps without being
-                 able to stop (not within stop distance in line of sight) is rejected
+                 able to stop (not within stop distance in line of sight) is rejected,
+                 and so is one the field has found no way to for unreachable_steps
     explore      no confirmed goal: follow the field's geodesic to the frontier
 
 Multi-frame confirmation: a map cell becomes a goal for the field (``GRField.update``'s
@@ -153,7 +154,8 @@ class Navigator:
         self.field.config.robot_radius = self.field_config.robot_radius
         self._radius = self.field_config.robot_radius  # the planning radius outside tight mode
         self.tight_left = 0
-        self.unreachable_count = 0
+        self.unreachable_count = 0  # ticks without a way to the goal, since tight planning
+        self.out_of_reach = 0  # ticks on end without a way to the committed goal
         self.recover_left = 0
         self.verify_count = 0
         self.dead_end_count = 0
@@ -312,9 +314,14 @@ class Navigator:
             self.no_path_count = 0
         # a confirmed goal the field cannot reach (it falls back to the frontier): the goal's
         # stand-off may sit in a passage the conservative inflation closes; plan thinner
-        self.unreachable_count = (
-            self.unreachable_count + 1 if self.committed and not bool(out.goal_seen[0]) else 0
-        )
+        unreachable = self.committed and not bool(out.goal_seen[0])
+        self.unreachable_count = self.unreachable_count + 1 if unreachable else 0
+        self.out_of_reach = self.out_of_reach + 1 if unreachable else 0
+        if cfg.unreachable_steps and self.out_of_reach >= self.steps_to_ticks(
+            cfg.unreachable_steps
+        ):
+            self.out_of_reach = 0
+            return self._abandon_goal(nearest, "unreachable")
         if (
             self.unreachable_count >= self.steps_to_ticks(cfg.no_path_steps)
             and self.tight_left == 0
@@ -334,7 +341,8 @@ class Navigator:
     def _reject_goal(self, centre: np.ndarray, reason: str) -> None:
         """Give up the confirmed goal with a cell centred at ``centre`` (2,) (metres from the
         grid corner): its connected cells and their two-cell rim lose their votes for good.
-        ``reason`` (a check's name, "verify", "dead_end" or "trap") goes to the log."""
+        ``reason`` (a check's name, "verify", "dead_end", "unreachable" or "trap") goes to
+        the log."""
         goal = self._goal_component(centre, rim=2)  # (H, W) this goal's cells and rim
         grid = self.field.grid
         xy = np.asarray(centre, np.float64) + (grid.origin_x, grid.origin_y)  # (2,) start frame

@@ -56,6 +56,10 @@ class NavigatorConfig:
     verify_steps: int = 12  # turning towards the goal before stopping anyway
     # at the end of the path to a goal it cannot stop at this long: reject the goal (0 = off)
     dead_end_steps: int = 30  # val 120-319: with trap_recoveries, SR 0.585 -> 0.600
+    # a confirmed goal the field has found no way to for this long on end (planning thinner
+    # included): reject it, so that a false goal seen far off (through a door, on a wall)
+    # neither holds the robot in thin, half-speed planning nor pulls at it all episode (0 = off)
+    unreachable_steps: int = 0
     blocked_steps: int = 15  # window of the blocked test (driving ahead, not moving)
     blocked_distance: float = 0.1  # m
     drive_bearing: float = math.radians(50.0)  # pursuit point within this: the plan drives
@@ -125,6 +129,7 @@ class NavigatorConfig:
             if int(getattr(self, key)) < 1:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 1")
         for key in ("recover_back_steps", "recover_turn_steps", "dead_end_steps",
+                    "unreachable_steps",
                     "trap_recoveries", "anchor_ticks"):  # fmt: skip
             if int(getattr(self, key)) < 0:
                 raise ValueError(f"model.navigator.{key}={getattr(self, key)} must be >= 0")
