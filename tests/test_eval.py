@@ -117,6 +117,30 @@ def test_a_killed_run_resumes_from_its_finished_rows(tmp_path):
         run_from_cli("config_debug", [f"output_dir={part}", "agent=expert", *FAST])
 
 
+def test_an_index_whose_house_hosts_no_episode_is_skipped_and_named(tmp_path, caplog):
+    from vla_gr.envs.episodes import NoEpisodeError, sample_episode
+
+    # val 3956-3959 share house 1000989, whose objects have no unique description
+    with pytest.raises(NoEpisodeError, match="house 1000989"):
+        sample_episode("val", 3956)
+    out = tmp_path / "skip"
+    args = ("agent=random", "split=val", "first_episode=3955", "num_episodes=2",
+            "env.max_episode_steps=5")  # fmt: skip
+    with caplog.at_level(logging.WARNING, logger="vla_gr.evaluate"):
+        metrics = evaluate(cfg_for(out, *args))
+    assert "1 of 2 episode indices skipped" in caplog.text
+    assert metrics["num_episodes"] == 2 and metrics["metrics"]["episodes"] == 1
+    assert list(metrics["skipped_episodes"]) == ["3956"]
+    assert "house 1000989 has no goal candidates" in metrics["skipped_episodes"]["3956"]
+    assert [r["episode_index"] for r in rows_of(out)] == [3955]
+    assert metrics["timing"]["episodes_run"] == 1
+    # a rerun in the same folder resumes the one episode and skips the other again
+    again = evaluate(cfg_for(out, *args))
+    assert again["timing"]["episodes_run"] == 0 and without_timing(again) == without_timing(
+        metrics
+    )
+
+
 # ----------------------------------------------------------------------------- failure causes
 
 

@@ -208,21 +208,35 @@ def evaluate(cfg, agent: str | None = None) -> dict:
         total=len(indices), initial=len(done), desc=f"eval {agent}", unit="ep",
         disable=not cfg.eval.progress,
     )  # fmt: skip
+    no_episode: dict[int, str] = {}  # index -> why its house hosts no episode
     try:
         with bar:
             for row in iter_episode_rows(cfg, agent, env_kwargs, todo, cfg.eval.workers):
+                bar.update(1)
+                if "no_episode" in row:
+                    no_episode[row["episode_index"]] = row["no_episode"]
+                    continue
                 writer.write(row)
                 done[row["episode_index"]] = row
                 successes += row["metrics"]["success"]
-                bar.update(1)
                 bar.set_postfix(SR=f"{successes / len(done):.2f}")
     finally:
         writer.close()
-    rows = [done[k] for k in indices]
+    if no_episode:
+        log.warning(
+            "%d of %d episode indices skipped, their house hosts no episode: %s",
+            len(no_episode), len(indices), "; ".join(f"{k}: {v}" for k, v in no_episode.items()),
+        )  # fmt: skip
+    rows = [done[k] for k in indices if k in done]
+    if not rows:
+        raise EvalInputError(f"no episode to run: every house of {source} {indices} hosts none")
     seconds = time.perf_counter() - t0
     metrics = summarize_rows(
-        rows, header, seconds, cfg.eval.workers, ran=len(todo), machine=describe_machine()
-    )
+        rows, header, seconds, cfg.eval.workers, ran=len(todo) - len(no_episode),
+        machine=describe_machine(),
+    )  # fmt: skip
+    # (index -> why), so that "num_episodes" above and "episodes" in "metrics" add up
+    metrics["skipped_episodes"] = {str(k): v for k, v in sorted(no_episode.items())}
     (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=1))
     chosen = select_episodes(rows, cfg.eval.gif_successes, cfg.eval.gif_per_cause)
     pictures = {}

@@ -262,29 +262,43 @@ def summarize(infos: Sequence[dict]) -> dict:
 _WORKER: dict = {}
 
 
-def _init_worker(cfg, agent_name: str, env_kwargs: dict, warm_index: int) -> None:
+def _init_worker(cfg, agent_name: str, env_kwargs: dict, warm_indices: Sequence[int]) -> None:
     """Per-process env + agent, made once and reused for every episode of the worker.
 
-    One untimed decision on episode ``warm_index`` first, so that lazy initialisation
-    (first kernels, caches) does not land in the latency of the first timed decision.
+    One untimed decision on the first of ``warm_indices`` whose house hosts an episode first,
+    so that lazy initialisation (first kernels, caches) does not land in the latency of the
+    first timed decision.
     """
     from vla_gr.data.collect import make_env
+    from vla_gr.envs.episodes import NoEpisodeError
     from vla_gr.evaluation.agents import make_agent
 
     torch.set_num_threads(1)
     env = make_env(env_kwargs)
     agent = make_agent(agent_name, cfg, env)
-    obs, _ = env.reset(seed=int(warm_index))
-    agent.reset(0)
-    with torch.inference_mode():
-        agent.act(obs)
+    for index in warm_indices:
+        try:
+            obs, _ = env.reset(seed=int(index))
+        except NoEpisodeError:
+            continue
+        agent.reset(0)
+        with torch.inference_mode():
+            agent.act(obs)
+        break
     _WORKER.update(env=env, agent=agent, cfg=cfg)
 
 
 def _work(index: int) -> dict:
+    """Episode ``index``'s row, or ``{"episode_index", "no_episode": why}`` when its house
+    cannot host an episode (:class:`~vla_gr.envs.episodes.NoEpisodeError`)."""
+    from vla_gr.envs.episodes import NoEpisodeError
+
     cfg = _WORKER["cfg"]
     th = thresholds_from_config(cfg)
-    return run_episode(_WORKER["env"], _WORKER["agent"], index, cfg.seed, th)
+    try:
+        return run_episode(_WORKER["env"], _WORKER["agent"], index, cfg.seed, th)
+    except NoEpisodeError as err:
+        return {"episode_index": int(index), "no_episode": str(err)}
 
 
 def thresholds_from_config(cfg) -> CauseThresholds:
@@ -299,6 +313,8 @@ def iter_episode_rows(
 ) -> Iterator[dict]:
     """Rows of episodes ``indices``, in that order, from ``workers`` processes (1: here).
 
+    An index whose house cannot host an episode gives ``{"episode_index", "no_episode"}``.
+
     Every worker, this process included, runs torch on one thread: the same arithmetic,
     so the rows do not depend on ``workers``.
     """
@@ -311,7 +327,7 @@ def iter_episode_rows(
         _WORKER.clear()
         torch.set_num_threads(threads)
 
-    init_args = (cfg, agent_name, env_kwargs, indices[0] if indices else 0)
+    init_args = (cfg, agent_name, env_kwargs, tuple(indices))
     yield from map_in_workers(_init_worker, init_args, _work, indices, workers, close)
 
 
