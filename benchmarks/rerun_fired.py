@@ -1,0 +1,98 @@
+"""Measure a rule that changes few episodes: rerun only the episodes where it fired.
+
+An episode runs the same steps whenever the agent decides the same, so a rule that is
+switched on changes only the episodes where it acted. Run the split once with the rule on,
+then without it on just those episodes, and put the two together::
+
+    vla-gr eval checkpoint=checkpoints/vla_gr_cpu split=val first_episode=3800 \\
+        num_episodes=200 workers=2 output_dir=runs/on \\
+        "eval.model_overrides=['navigator.unreachable_steps=200']"
+    python benchmarks/rerun_fired.py episodes runs/on --reason unreachable --out fired.jsonl
+    vla-gr eval checkpoint=checkpoints/vla_gr_cpu episodes=fired.jsonl workers=2 \\
+        output_dir=runs/off
+    python benchmarks/rerun_fired.py merge runs/on runs/off
+
+``episodes`` writes the specs of the episodes in which S2 rejected a goal for ``--reason``
+(the rows' ``rejected_goals``); ``merge`` prints SR / SPL of the run with the rule and of the
+same episodes without it (the first run's rows, those of the second in their place), and the
+episodes won and lost.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from vla_gr.envs.episodes import EpisodeSpec, save_episodes
+from vla_gr.evaluation.runner import read_rows
+
+
+def fired_specs(run_dir: Path, reason: str) -> list[EpisodeSpec]:
+    """Specs of the episodes of ``run_dir`` in which a goal was rejected for ``reason``."""
+    rows = read_rows(run_dir / "episodes.jsonl")
+    if not rows:
+        raise SystemExit(f"{run_dir}/episodes.jsonl holds no episodes")
+    return [
+        EpisodeSpec.from_dict(r["spec"])
+        for r in rows
+        if any(g.get("reason") == reason for g in r["rejected_goals"])
+    ]
+
+
+def merge(on_dir: Path, off_dir: Path) -> dict:
+    """SR / SPL with the rule (``on_dir``) and without it (``off_dir``'s rows in place of
+    the same episodes), and the episode ids won and lost by the rule."""
+    on = {r["episode_id"]: r for r in read_rows(on_dir / "episodes.jsonl")}
+    off = {r["episode_id"]: r for r in read_rows(off_dir / "episodes.jsonl")}
+    if not set(off) <= set(on):
+        raise SystemExit(f"{off_dir} holds episodes that {on_dir} does not")
+    without = {**on, **off}
+
+    def score(rows) -> tuple[float, float]:
+        rows = list(rows)
+        return (
+            float(np.mean([r["metrics"]["success"] for r in rows])),
+            float(np.mean([r["metrics"]["spl"] for r in rows])),
+        )
+
+    won = sorted(k for k in off if on[k]["metrics"]["success"] > off[k]["metrics"]["success"])
+    lost = sorted(k for k in off if on[k]["metrics"]["success"] < off[k]["metrics"]["success"])
+    return {
+        "episodes": len(on),
+        "rerun": len(off),
+        "with_rule": score(on.values()),
+        "without_rule": score(without.values()),
+        "won": won,
+        "lost": lost,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    ep = sub.add_parser("episodes", help="specs of the episodes where the rule fired")
+    ep.add_argument("run_dir", type=Path)
+    ep.add_argument("--reason", required=True, help="a rejection reason, e.g. unreachable")
+    ep.add_argument("--out", type=Path, required=True)
+    mg = sub.add_parser("merge", help="the run with the rule against the same without it")
+    mg.add_argument("on_dir", type=Path)
+    mg.add_argument("off_dir", type=Path)
+    args = parser.parse_args()
+    if args.command == "episodes":
+        specs = fired_specs(args.run_dir, args.reason)
+        save_episodes(args.out, specs)
+        print(f"{len(specs)} episodes with a {args.reason!r} rejection -> {args.out}")
+        return
+    m = merge(args.on_dir, args.off_dir)
+    print(f"{m['episodes']} episodes, {m['rerun']} rerun without the rule")
+    print("| | SR | SPL |\n|---|---|---|")
+    for name in ("with_rule", "without_rule"):
+        sr, spl = m[name]
+        print(f"| {name.replace('_', ' ')} | {sr:.3f} | {spl:.3f} |")
+    print(f"won {len(m['won'])}: {m['won']}\nlost {len(m['lost'])}: {m['lost']}")
+
+
+if __name__ == "__main__":
+    main()
