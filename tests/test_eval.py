@@ -136,9 +136,7 @@ def test_an_index_whose_house_hosts_no_episode_is_skipped_and_named(tmp_path, ca
     assert metrics["timing"]["episodes_run"] == 1
     # a rerun in the same folder resumes the one episode and skips the other again
     again = evaluate(cfg_for(out, *args))
-    assert again["timing"]["episodes_run"] == 0 and without_timing(again) == without_timing(
-        metrics
-    )
+    assert again["timing"]["episodes_run"] == 0 and without_timing(again) == without_timing(metrics)
 
 
 # ----------------------------------------------------------------------------- failure causes
