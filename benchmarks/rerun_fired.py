@@ -13,7 +13,8 @@ then without it on just those episodes, and put the two together::
     python benchmarks/rerun_fired.py merge runs/on runs/off
 
 ``episodes`` writes the specs of the episodes in which S2 rejected a goal for ``--reason``
-(the rows' ``rejected_goals``); ``merge`` prints SR / SPL of the run with the rule and of the
+(the rows' ``rejected_goals``); ``merge`` prints SR, SPL and collision rate of the run with
+the rule and of the
 same episodes without it (the first run's rows, those of the second in their place), and the
 episodes won and lost.
 """
@@ -23,9 +24,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
 from vla_gr.envs.episodes import EpisodeSpec, save_episodes
+from vla_gr.envs.metrics import aggregate
 from vla_gr.evaluation.runner import read_rows
 
 
@@ -42,28 +42,21 @@ def fired_specs(run_dir: Path, reason: str) -> list[EpisodeSpec]:
 
 
 def merge(on_dir: Path, off_dir: Path) -> dict:
-    """SR / SPL with the rule (``on_dir``) and without it (``off_dir``'s rows in place of
-    the same episodes), and the episode ids won and lost by the rule."""
+    """The run's metrics (:func:`~vla_gr.envs.metrics.aggregate`: SR, SPL, collision rate, ...)
+    with the rule (``on_dir``) and without it (``off_dir``'s rows in place of the same
+    episodes), and the episode ids won and lost by the rule."""
     on = {r["episode_id"]: r for r in read_rows(on_dir / "episodes.jsonl")}
     off = {r["episode_id"]: r for r in read_rows(off_dir / "episodes.jsonl")}
     if not set(off) <= set(on):
         raise SystemExit(f"{off_dir} holds episodes that {on_dir} does not")
     without = {**on, **off}
-
-    def score(rows) -> tuple[float, float]:
-        rows = list(rows)
-        return (
-            float(np.mean([r["metrics"]["success"] for r in rows])),
-            float(np.mean([r["metrics"]["spl"] for r in rows])),
-        )
-
     won = sorted(k for k in off if on[k]["metrics"]["success"] > off[k]["metrics"]["success"])
     lost = sorted(k for k in off if on[k]["metrics"]["success"] < off[k]["metrics"]["success"])
     return {
         "episodes": len(on),
         "rerun": len(off),
-        "with_rule": score(on.values()),
-        "without_rule": score(without.values()),
+        "with_rule": aggregate([r["metrics"] for r in on.values()]),
+        "without_rule": aggregate([r["metrics"] for r in without.values()]),
         "won": won,
         "lost": lost,
     }
@@ -87,10 +80,11 @@ def main() -> None:
         return
     m = merge(args.on_dir, args.off_dir)
     print(f"{m['episodes']} episodes, {m['rerun']} rerun without the rule")
-    print("| | SR | SPL |\n|---|---|---|")
+    print("| | SR | SPL | collision rate |\n|---|---|---|---|")
     for name in ("with_rule", "without_rule"):
-        sr, spl = m[name]
-        print(f"| {name.replace('_', ' ')} | {sr:.3f} | {spl:.3f} |")
+        a = m[name]
+        print(f"| {name.replace('_', ' ')} | {a['success']:.3f} | {a['spl']:.3f} | "
+              f"{a['collision_rate']:.4f} |")  # fmt: skip
     print(f"won {len(m['won'])}: {m['won']}\nlost {len(m['lost'])}: {m['lost']}")
 
 

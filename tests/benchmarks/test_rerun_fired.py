@@ -21,7 +21,14 @@ def _row(index: int, success: float, spl: float, reasons=()) -> dict:
     return {
         "episode_id": spec.episode_id,
         "spec": spec.to_dict(),
-        "metrics": {"success": success, "spl": spl},
+        "metrics": {
+            "success": success,
+            "spl": spl,
+            "soft_spl": spl,
+            "collision_rate": 0.0,
+            "path_length": 3.0,
+            "distance_to_goal": 0.5 if success else 2.0,
+        },  # fmt: skip
         "rejected_goals": [{"reason": r, "kind": "goal"} for r in reasons],
     }
 
@@ -48,8 +55,11 @@ def test_the_fired_episodes_and_the_run_without_the_rule(tmp_path):
     ])  # fmt: skip
     m = bench.merge(on, off)
     assert (m["episodes"], m["rerun"]) == (4, 3)
-    assert m["with_rule"] == pytest.approx((0.5, 0.35))  # (1 + 0 + 1 + 0) / 4, (.8 + .6) / 4
-    assert m["without_rule"] == pytest.approx((0.5, 0.275))  # (0 + 1 + 1 + 0) / 4, 1.1 / 4
+    with_rule, without_rule = m["with_rule"], m["without_rule"]
+    # (1 + 0 + 1 + 0) / 4, (.8 + .6) / 4; then (0 + 1 + 1 + 0) / 4, 1.1 / 4
+    assert (with_rule["success"], with_rule["spl"]) == pytest.approx((0.5, 0.35))
+    assert (without_rule["success"], without_rule["spl"]) == pytest.approx((0.5, 0.275))
+    assert with_rule["episodes"] == without_rule["episodes"] == 4
     assert m["won"] == ["val-000000"] and m["lost"] == ["val-000001"]
     # rows rerun that the first run lacks: refused
     with pytest.raises(SystemExit, match="does not"):
