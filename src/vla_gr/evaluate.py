@@ -229,7 +229,8 @@ def evaluate(cfg, agent: str | None = None) -> dict:
         )  # fmt: skip
     rows = [done[k] for k in indices if k in done]
     if not rows:
-        raise EvalInputError(f"no episode to run: every house of {source} {indices} hosts none")
+        first, last = indices[0], indices[-1]
+        raise EvalInputError(f"no episode to run: no house of {source} {first}-{last} hosts one")
     seconds = time.perf_counter() - t0
     metrics = summarize_rows(
         rows, header, seconds, cfg.eval.workers, ran=len(todo) - len(no_episode),
