@@ -4,13 +4,15 @@ passes or as one batch of two.
     python benchmarks/bench_goal_head_latency.py --checkpoint checkpoints/vla_gr_cpu \
         [--calls 200] [--rounds 5]
 
-The three variants run interleaved, round after round, on the same recorded `val` frames
+The variants run interleaved, round after round, on the same recorded `val` frames
 (rgb, depth and instruction of real episodes), so their ratios are measured side by side:
 
 - ``one_pass``: ``GoalHead.probabilities`` without the flip;
 - ``flip_two_passes``: the frame and its mirror through the network one after the other, the
   mirrored maps flipped back and averaged (how the flip was first run);
-- ``flip_batched``: ``GoalHead.probabilities`` with the flip (one forward on a batch of two).
+- ``flip_batched``: ``GoalHead.probabilities`` with the flip (one forward on a batch of two);
+- ``flip_batched_interpolate``: the same with the decoder upsampling through
+  ``F.interpolate(mode="nearest")``, as it did before ``upsample_nearest_2x`` (same values).
 
 Reports the median over rounds of each round's p50 / p95 (ms per call) and the ratio of each
 variant's p50 to ``one_pass``'s in the same round. Writes ``<out>.json`` and ``<out>.md``.
@@ -28,7 +30,9 @@ from pathlib import Path
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 
+from vla_gr.core.grounding import goal_head as goal_head_module
 from vla_gr.data.collect import make_env
 from vla_gr.machine import describe_machine, machine_line
 from vla_gr.policy import VLAGRPolicy
@@ -38,7 +42,7 @@ logger = logging.getLogger("bench_goal_head_latency")
 
 ROOT = Path(__file__).resolve().parent
 DEFAULT_OUT = ROOT / "results" / "bench_goal_head_latency"
-VARIANTS = ("one_pass", "flip_two_passes", "flip_batched")
+VARIANTS = ("one_pass", "flip_two_passes", "flip_batched", "flip_batched_interpolate")
 
 
 def recorded_frames(count: int, split: str) -> list[dict]:
@@ -80,10 +84,27 @@ def two_passes(head, frame: dict) -> dict[str, torch.Tensor]:
             for k, v in own.items()}  # fmt: skip
 
 
+@contextmanager
+def interpolated_upsampling():
+    """The goal head's decoder upsampling through ``F.interpolate`` inside the block."""
+    saved = goal_head_module.upsample_nearest_2x
+    goal_head_module.upsample_nearest_2x = lambda h: F.interpolate(
+        h, scale_factor=2, mode="nearest"
+    )
+    try:
+        yield
+    finally:
+        goal_head_module.upsample_nearest_2x = saved
+
+
 def one_call(head, variant: str, frame: dict) -> None:
     """One S2 perception call of ``variant``."""
     if variant == "flip_two_passes":
         two_passes(head, frame)
+        return
+    if variant == "flip_batched_interpolate":
+        with interpolated_upsampling(), flip_set(head, True):
+            head.probabilities(frame["rgb"], frame["depth"], frame["instruction"])
         return
     with flip_set(head, variant == "flip_batched"):
         head.probabilities(frame["rgb"], frame["depth"], frame["instruction"])
@@ -92,7 +113,7 @@ def one_call(head, variant: str, frame: dict) -> None:
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--calls", type=int, default=200, help="calls per variant per round")
-    parser.add_argument("--rounds", type=int, default=5, help="rounds of the three variants")
+    parser.add_argument("--rounds", type=int, default=5, help="rounds of the variants")
     parser.add_argument("--checkpoint", default="checkpoints/vla_gr_cpu")
     parser.add_argument("--split", default="val", help="the episodes the frames come from")
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
@@ -109,6 +130,11 @@ def main(argv: list[str] | None = None) -> dict:
         reference = two_passes(head, frames[0])
         for key, value in reference.items():  # the two ways compute the same maps
             torch.testing.assert_close(batched[key], value, rtol=1e-4, atol=1e-5)
+        with interpolated_upsampling(), flip_set(head, True):
+            before = head.probabilities(frame["rgb"], frame["depth"], frame["instruction"])
+        for key, value in before.items():  # the two upsamplings give the same values
+            if not torch.equal(batched[key], value):
+                raise AssertionError(f"{key}: upsample_nearest_2x differs from F.interpolate")
         for frame in frames[:10]:  # warm-up
             for variant in VARIANTS:
                 one_call(head, variant, frame)

@@ -4,6 +4,7 @@ import math
 
 import pytest
 import torch
+import torch.nn.functional as F
 
 from vla_gr.core.grounding import (
     GoalHead,
@@ -13,6 +14,7 @@ from vla_gr.core.grounding import (
     mask_confusion,
     visible_targets,
 )
+from vla_gr.core.grounding.goal_head import upsample_nearest_2x
 
 
 def _head(**kw) -> GoalHead:
@@ -216,3 +218,14 @@ def test_test_time_flip_averages_the_mirror_and_is_mirror_equivariant():
     torch.testing.assert_close(q2, p2.flip(-1))
     torch.testing.assert_close(w2, v2)
     assert not torch.allclose(pm, p.flip(-1))
+
+
+def test_decoder_upsampling_repeats_each_value_into_a_2x2_block():
+    torch.manual_seed(0)
+    h = torch.randn(2, 5, 3, 4)
+    up = upsample_nearest_2x(h)  # (2, 5, 6, 8)
+    assert up.shape == (2, 5, 6, 8)
+    assert torch.equal(up, F.interpolate(h, scale_factor=2, mode="nearest"))
+    for dr in (0, 1):
+        for dc in (0, 1):
+            assert torch.equal(up[:, :, dr::2, dc::2], h)

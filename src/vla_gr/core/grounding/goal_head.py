@@ -27,7 +27,7 @@ from vla_gr.core.encoders import TEXT_ENCODERS, build_text_encoder
 from vla_gr.geometry.robot_spec import MAX_DEPTH
 from vla_gr.validation import check_choice, check_positive
 
-__all__ = ["GoalHead", "GoalHeadConfig", "rgbd_inputs"]
+__all__ = ["GoalHead", "GoalHeadConfig", "rgbd_inputs", "upsample_nearest_2x"]
 
 
 @dataclass
@@ -72,6 +72,16 @@ def rgbd_inputs(rgb: torch.Tensor, depth: torch.Tensor, max_depth: float) -> tor
         rgb = rgb.float() / 255.0
     d = depth.float().clamp(0.0, max_depth) / max_depth  # (B, 1, H, W)
     return torch.cat([rgb.float() * 2.0 - 1.0, d * 2.0 - 1.0], dim=1)  # (B, 4, H, W)
+
+
+def upsample_nearest_2x(h: torch.Tensor) -> torch.Tensor:
+    """(B, C, H, W) -> (B, C, 2H, 2W), each value repeated into a 2x2 block.
+
+    The same values as ``F.interpolate(h, scale_factor=2, mode="nearest")``, as a view
+    expanded and copied once: several times faster on CPU at the decoder's sizes.
+    """
+    B, C, H, W = h.shape
+    return h[:, :, :, None, :, None].expand(B, C, H, 2, W, 2).reshape(B, C, 2 * H, 2 * W)
 
 
 def _mean_with_mirror(v: torch.Tensor) -> torch.Tensor:
@@ -175,7 +185,7 @@ class GoalHead(nn.Module):
         pooled = torch.cat([h.mean(dim=(2, 3)), h.amax(dim=(2, 3))], dim=1)  # (B, 2 C_last)
         for stage in self.up:
             skip = skips.pop()  # (B, C_i, 2h, 2w)
-            h = F.interpolate(h, size=skip.shape[2:], mode="nearest")  # (B, C_{i+1}, 2h, 2w)
+            h = upsample_nearest_2x(h)  # (B, C_{i+1}, 2h, 2w): sides divide by the stride
             h = stage(torch.cat([h, skip], dim=1), text)  # (B, C_i, 2h, 2w)
         out = {
             "pixel_logits": self.pixel_logit(h)[:, 0],  # (B, H, W)
