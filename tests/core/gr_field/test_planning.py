@@ -8,6 +8,7 @@ import torch
 
 from vla_gr.core.gr_field import FEATURE_NAMES, GRField, GRFieldConfig, snap_start
 from vla_gr.core.gr_field.mapping import FREE_HITS, GOAL_SUM, OCC_HITS, POINT_HITS
+from vla_gr.geometry import camera
 from vla_gr.geometry.camera import ego_to_world, intrinsics_from_hfov
 
 HFOV, CAM_H, N = 79.0, 0.88, 64
@@ -16,18 +17,7 @@ ROOM = (-2.0, 3.0, -1.7, 2.3)  # x0, x1, y0, y1 of a box room around the start (
 
 def box_room_depth(pose, room=ROOM, n=N, hfov=HFOV):
     """Analytic z-depth (n, n) of an axis-aligned box room with a floor, seen from ``pose``."""
-    K = intrinsics_from_hfov(n, n, hfov)
-    px, py, yaw = pose
-    a = np.arange(n) + 0.5
-    left = np.broadcast_to(-(a - K.cx) / K.fx, (n, n))  # (n, n) per column
-    up = np.broadcast_to((-(a - K.cy) / K.fy)[:, None], (n, n))  # (n, n) per row
-    dx = np.cos(yaw) - np.sin(yaw) * left  # world ray per unit z-depth
-    dy = np.sin(yaw) + np.cos(yaw) * left
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ts = [(room[0] - px) / dx, (room[1] - px) / dx, (room[2] - py) / dy, (room[3] - py) / dy]
-        ts.append(np.where(up < 0, CAM_H / -up, np.inf))
-    ts = np.stack([np.where(t > 1e-9, t, np.inf) for t in ts])  # (5, n, n)
-    return ts.min(axis=0).astype(np.float32)
+    return camera.box_room_depth(pose, room, n, hfov, CAM_H)
 
 
 def obs_of(*poses, room=ROOM):
