@@ -1,7 +1,7 @@
 """An episodes file of one instruction kind, for a focused ``vla-gr eval`` run.
 
     python benchmarks/episodes_of_kind.py --split val --first 1000 --last 1800 \
-        --kind relation --out benchmarks/results/eval/episodes/val_relation_1000-1799.jsonl
+        --kind relation --out docs/experiments/eval/episodes/val_relation_1000-1799.jsonl
 
 Samples episodes ``first`` .. ``last - 1`` of ``split`` exactly as the environment does
 (same index, same spec), keeps those whose instruction is of ``kind`` ("relation", "room",

@@ -26,9 +26,7 @@ def test_the_kept_episodes_are_the_splits_own_of_that_kind_and_match_the_committ
     assert indices == sorted(indices) and all(1000 <= i < 1030 for i in indices)
     assert kept[0] == sample_episode("val", indices[0])  # the environment's spec, unchanged
     # the committed relation set starts with exactly these episodes
-    committed = load_episodes(
-        _ROOT / "benchmarks/results/eval/episodes/val_relation_1000-1799.jsonl"
-    )
+    committed = load_episodes(_ROOT / "docs/experiments/eval/episodes/val_relation_1000-1799.jsonl")
     assert committed[: len(kept)] == kept
     assert load_episodes(save_episodes(tmp_path / "e.jsonl", kept)) == kept
 
