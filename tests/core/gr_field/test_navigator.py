@@ -14,7 +14,7 @@ from vla_gr.core.dual_system.pure_pursuit import (
     clearance_ahead,
     pursuit_action,
 )
-from vla_gr.core.gr_field.mapping import OCC_HITS
+from vla_gr.core.gr_field.mapping import FREE_HITS, OCC_HITS
 from vla_gr.core.gr_field.navigator import Navigator, NavigatorConfig, NavPlan
 from vla_gr.geometry.pose2d import lookahead_target
 
@@ -62,7 +62,7 @@ def test_single_tick_false_positive_does_not_commit_but_repeated_evidence_does()
     like = wall_goal(room_depth(pose))
     plan = tick(nav, pose, like)  # one tick of goal pixels
     assert not nav.committed and plan.mode == "explore"
-    assert not nav.field.last_maps["goal"].any()  # the field plans to no goal
+    assert not nav.field.maps.goal.any()  # the field plans to no goal
     for _ in range(3):
         plan = tick(nav, pose)  # the "goal" vanished
     assert not nav.committed and plan.mode == "explore"
@@ -142,10 +142,10 @@ def test_blocked_fires_after_the_window_marks_an_obstacle_and_backs_up():
     plan = tick(nav, pose, like)
     assert plan.mode == "recover" and plan.command[0] < 0.0  # backs up first
     r, c = nav.field.grid.world_to_cell(np.array([0.3, 0.0]))
-    near = nav.field.map_state[0, 0, r - 1 : r + 2, c - 1 : c + 2]  # (3, 3) around the spot
+    near = nav.field.evidence()[OCC_HITS, r - 1 : r + 2, c - 1 : c + 2]  # (3, 3) around it
     assert near.max() >= nav.config.virtual_obstacle_hits  # a virtual obstacle in front
     nav.map_edits.clear_virtual_obstacles()
-    assert nav.field.map_state[0, 0, r - 1 : r + 2, c - 1 : c + 2].max() < 10
+    assert nav.field.evidence()[OCC_HITS, r - 1 : r + 2, c - 1 : c + 2].max() < 10
 
 
 def test_no_progress_fires_after_the_window_without_a_virtual_obstacle():
@@ -221,26 +221,28 @@ def test_lookahead_skips_passed_waypoints():
 
 
 def test_noise_is_forgotten_but_real_obstacles_stay():
-    nav = make_nav(look_around_angle=0.0)
+    nav = make_nav(look_around_angle=0.0, noise_free_ratio=1.0)
     tick(nav, (0.0, 0.0, 0.0))
-    state = nav.field.map_state[0]  # (4, H, W)
-    state[:, 5, 5] = 0.0
-    state[0, 5, 5], state[1, 5, 5] = 1.0, 10.0  # one stray point in a cell seen free 10 times
-    state[:, 6, 6] = 0.0
-    state[0, 6, 6], state[1, 6, 6] = 5.0, 10.0  # a real obstacle seen repeatedly
+    stray, real, unseen = torch.tensor([[5, 5]]), torch.tensor([[6, 6]]), torch.tensor([[7, 7]])
+    assert nav.field.evidence()[:, 5:8, 5:8].sum() == 0  # outside the room: never seen
+    nav.field.mark_unseen_free(torch.cat([stray, real]))  # one free hit each
+    nav.field.add_obstacle_evidence(stray, 1.0)  # one stray point, outvoted by free space
+    nav.field.add_obstacle_evidence(real, 5.0)  # a real obstacle seen repeatedly
+    nav.field.add_obstacle_evidence(unseen, 1.0)  # one point, no free evidence against it
     nav.map_edits.forget_noise()
-    assert state[0, 5, 5] == 0.0 and state[0, 6, 6] == 5.0
+    occ = nav.field.evidence()[OCC_HITS]  # (H, W)
+    assert occ[5, 5] == 0.0 and occ[6, 6] == 5.0 and occ[7, 7] == 1.0
 
 
 def test_visited_cells_count_as_explored_without_hiding_obstacles():
     nav = make_nav(look_around_angle=0.0)
     tick(nav, (0.0, 0.0, 0.0))
-    state = nav.field.map_state[0]  # (4, H, W)
     r, c = nav.field.grid.world_to_cell(np.array([-0.6, 0.0]))  # behind: never seen
-    assert state[:, r, c].sum() == 0
-    state[0, r + 1, c] = 3.0  # an obstacle seen beside it
+    assert nav.field.evidence()[:, r, c].sum() == 0
+    nav.field.add_obstacle_evidence(torch.tensor([[r + 1, c]]), 3.0)  # an obstacle beside it
     nav.map_edits.mark_visited(np.array([0.0, 0.0]), 0.8)
-    assert state[1, r, c] == 1.0 and state[1, r + 1, c] == 0.0
+    free = nav.field.evidence()[FREE_HITS]  # (H, W)
+    assert free[r, c] == 1.0 and free[r + 1, c] == 0.0
 
 
 def test_pursuit_turns_in_place_instead_of_arcing_into_a_near_obstacle():
@@ -261,11 +263,11 @@ def test_tight_mode_plans_thinner_and_slower_then_restores_the_radius():
     pose = (0.0, 0.0, 0.0)
     assert tick(nav, pose).max_speed == 1.0
     nav._start_tight()
-    assert nav.field.config.robot_radius == 0.05
+    assert nav.field.planning_radius == 0.05
     assert nav.field_config.robot_radius == 0.18  # the configured radius is untouched
     speeds = [tick(nav, pose).max_speed for _ in range(4)]
     assert speeds[:2] == [nav.config.tight_speed] * 2 and speeds[-1] == 1.0
-    assert nav.field.config.robot_radius == 0.18
+    assert nav.field.planning_radius == 0.18
 
 
 def test_a_goal_that_fails_to_verify_is_rejected_and_a_verified_one_stops():
@@ -308,9 +310,9 @@ def _dead_end_setup(**overrides):
     tick(nav, pose)  # the field has maps
     nav.goal_votes[40:42, 36:38] = 5  # a confirmed goal ~0.7 m to the robot's left
     nav.committed, nav.mode = True, "approach"
-    h = nav.field.config.cell_size
+    h = nav.field.cell_size
     nearest = np.array([(36 + 0.5) * h, (40 + 0.5) * h])  # (x, y) from the grid corner
-    robot_xy = nav.field.last_maps["robot_xy"][0].numpy()
+    robot_xy = nav.field.maps.robot_xy[0].numpy()
 
     def decide(last_waypoint, reachable=True):
         waypoints = torch.tensor([[[0.05, 0.0]] * 7 + [[last_waypoint, 0.0]]])  # (1, 8, 2)
@@ -336,7 +338,7 @@ def test_a_goal_the_robot_stands_at_the_dead_end_of_is_rejected():
     assert nav.rejected[40:42, 36:38].all() and nav.rejected[38, 36]  # with its rim
     # the log holds the reason and the goal cell's centre in the episode-start frame
     (entry,) = nav.rejection_log
-    h, origin = nav.field.config.cell_size, nav.field.grid.origin_x
+    h, origin = nav.field.cell_size, nav.field.grid.origin_x
     assert entry["reason"] == "dead_end"
     assert entry["xy"] == pytest.approx([origin + 36.5 * h, origin + 40.5 * h], abs=1e-3)
     assert not nav.rejected[20, 20]  # elsewhere the map still takes votes
@@ -375,19 +377,22 @@ def test_a_robot_trapped_in_one_spot_closes_the_way_ahead_or_rejects_its_goal():
     nav = make_nav(look_around_angle=0.0, trap_recoveries=3, trap_radius=0.5)
     pose = np.array([0.0, 0.0, 0.0])
     tick(nav, pose)
-    occ = nav.field.map_state[0, OCC_HITS]  # (H, W)
     ahead = tuple(nav.map_edits.disk_cells(np.array([0.55, 0.0]), 0.01)[0].tolist())  # (row, col)
+
+    def occ_ahead() -> float:
+        return float(nav.field.evidence()[OCC_HITS][ahead])
+
     nav._start_recovery(np.array([1.5, 0.0, 0.0]), mark=False)  # elsewhere: not this spot
     for k in range(2):
         nav._start_recovery(pose + [0.1 * k, 0.0, 0.0], mark=True)
-    assert nav.traps == 0 and occ[ahead] == 0
+    assert nav.traps == 0 and occ_ahead() == 0
     nav._start_recovery(pose, mark=True)  # the third within 0.5 m
-    assert nav.traps == 1 and occ[ahead] >= nav.config.virtual_obstacle_hits
+    assert nav.traps == 1 and occ_ahead() >= nav.config.virtual_obstacle_hits
     nav.map_edits.clear_virtual_obstacles()  # no path: virtual obstacles go, the lasting one stays
-    assert occ[ahead] >= nav.config.virtual_obstacle_hits
+    assert occ_ahead() >= nav.config.virtual_obstacle_hits
     # committed to a goal: the goal is rejected instead
     nav, decide = _dead_end_setup(trap_recoveries=2)
-    h = nav.field.config.cell_size
+    h = nav.field.cell_size
     nearest = np.array([(36 + 0.5) * h, (40 + 0.5) * h])
     for _ in range(2):
         nav._start_recovery(np.zeros(3), mark=False, nearest=nearest)
@@ -395,17 +400,17 @@ def test_a_robot_trapped_in_one_spot_closes_the_way_ahead_or_rejects_its_goal():
     assert nav.rejection_log[0]["reason"] == "trap"
     # without trap_rejects_goal the goal keeps its votes and the way ahead is closed instead
     nav, _ = _dead_end_setup(trap_recoveries=2, trap_rejects_goal=False)
-    occ = nav.field.map_state[0, OCC_HITS]  # (H, W)
     ahead = tuple(nav.map_edits.disk_cells(np.array([0.55, 0.0]), 0.01)[0].tolist())
     for _ in range(2):
         nav._start_recovery(np.zeros(3), mark=False, nearest=nearest)
     assert nav.traps == 1 and nav.rejections == 0 and nav.goal_votes[40:42, 36:38].min() == 5
+    occ = nav.field.evidence()[OCC_HITS]  # (H, W)
     assert occ[ahead] >= nav.config.virtual_obstacle_hits and not nav.map_edits.virtual
 
 
 def test_rejecting_at_a_cell_outside_any_confirmed_goal_rejects_only_its_neighbourhood():
     nav, _ = _dead_end_setup()
-    h = nav.field.config.cell_size
+    h = nav.field.cell_size
     nav.goal_votes[10, 10] = 1  # a vote elsewhere, below confirm_ticks
     nav._reject_goal(np.array([(20 + 0.5) * h, (20 + 0.5) * h]), "trap")  # (20, 20): no goal
     assert nav.rejected.sum() == 25 and nav.rejected[18:23, 18:23].all()

@@ -33,7 +33,7 @@ def test_wall_at_known_distance_lands_in_the_analytic_cells():
     D = 2.0  # a fronto-parallel wall ahead; the room is wide enough that only it is seen
     field = GRField(map_size=128, cell_size=0.15)
     out = field.update(obs_of((0.0, 0.0, 0.0), room=(-5.0, D, -20.0, 20.0)))
-    occ = field.last_maps["occupied"][0].numpy()
+    occ = field.maps.occupied[0].numpy()
     K = intrinsics_from_hfov(N, N, HFOV)
     lateral = D * (K.cx - (np.arange(N) + 0.5)) / K.fx  # (N,) y of each column's wall point
     g = field.grid
@@ -42,7 +42,7 @@ def test_wall_at_known_distance_lands_in_the_analytic_cells():
     expected = np.zeros_like(occ)
     expected[rows, col] = True
     assert np.array_equal(occ, expected)
-    explored = field.last_maps["explored"][0].numpy()
+    explored = field.maps.explored[0].numpy()
     r0 = int(np.floor(-g.origin_y / g.cell_size))
     assert explored[r0, int(np.floor(-g.origin_x / g.cell_size)) : col].all()  # ray to the wall
     assert not explored[r0, col + 1 :].any()  # nothing seen behind it
@@ -60,14 +60,14 @@ def test_two_views_accumulate_additively_and_agree_on_their_overlap():
     fab.update(obs_of(pa))
     fab.update(obs_of(pb))
     for ch in (OCC_HITS, FREE_HITS, POINT_HITS):
-        torch.testing.assert_close(fab.map_state[:, ch], fa.map_state[:, ch] + fb.map_state[:, ch])
-    occ_a, occ_b = fa.last_maps["occupied"][0].numpy(), fb.last_maps["occupied"][0].numpy()
-    exp_a, exp_b = fa.last_maps["explored"][0].numpy(), fb.last_maps["explored"][0].numpy()
+        torch.testing.assert_close(fab.evidence()[ch], fa.evidence()[ch] + fb.evidence()[ch])
+    occ_a, occ_b = fa.maps.occupied[0].numpy(), fb.maps.occupied[0].numpy()
+    exp_a, exp_b = fa.maps.explored[0].numpy(), fb.maps.explored[0].numpy()
     both = exp_a & exp_b
     agree = (occ_a == occ_b)[both].mean()
     assert both.sum() > 100 and agree > 0.97
     # every occupied cell lies on a wall of the room (within one cell)
-    rows, cols = np.nonzero(fab.last_maps["occupied"][0].numpy())
+    rows, cols = np.nonzero(fab.maps.occupied[0].numpy())
     x, y = cell_xy(fab, rows, cols).T
     to_wall = np.minimum.reduce(
         [abs(x - ROOM[0]), abs(x - ROOM[1]), abs(y - ROOM[2]), abs(y - ROOM[3])]
@@ -89,8 +89,8 @@ def test_bad_depth_is_masked_and_never_propagated():
     f1, f2 = GRField(), GRField()
     out1 = f1.update({"depth": bad, "pose": obs["pose"]})
     f2.update({"depth": masked, "pose": obs["pose"]})
-    assert torch.equal(f1.map_state, f2.map_state)
-    for t in (out1.features, out1.waypoints, f1.last_maps["phi_hat"], f1.last_maps["psi"]):
+    assert torch.equal(f1.evidence(), f2.evidence())
+    for t in (out1.features, out1.waypoints, f1.maps.phi_hat, f1.maps.psi):
         assert not torch.isnan(t).any()
     assert out1.has_path.all() and ref.has_path.all()
 
@@ -165,7 +165,7 @@ def test_batch_elements_are_independent_and_reset_clears_only_the_chosen_ones():
     torch.testing.assert_close(out.features[1], ref.features[0])
     torch.testing.assert_close(out.waypoints[1], ref.waypoints[0])
     both.reset([0])
-    assert both.map_state[0].sum() == 0 and torch.equal(both.map_state[1], single.map_state[0])
+    assert both.evidence(0).sum() == 0 and torch.equal(both.evidence(1), single.evidence(0))
     with pytest.raises(ValueError, match="batch size"):
         both.update(obs_of(pa))
     with pytest.raises(ValueError, match="batch_indices"):
@@ -225,7 +225,7 @@ def test_rendered_walls_land_on_the_true_occupancy():
         assert hit.any()
         true_d = float(t[inside][np.argmax(hit)])
         assert float(obs["depth"][32, 31:33].mean()) == pytest.approx(true_d, abs=0.1)
-        occ = field.last_maps["occupied"][0].numpy()
+        occ = field.maps.occupied[0].numpy()
         g = field.grid
         row = int(np.floor(-g.origin_y / g.cell_size))  # the map's x axis is the start heading
         first = np.argmax(occ[row, int(np.floor(-g.origin_x / g.cell_size)) :])
@@ -238,7 +238,7 @@ def test_rendered_walls_land_on_the_true_occupancy():
             field.update({"depth": obs["depth"][None], "pose": obs["pose"][None]})
         pose_err = np.asarray(world.robot_pose_world()) - start
         assert np.hypot(*pose_err[:2]) > 0.05  # it did move
-        rows, cols = np.nonzero(field.last_maps["occupied"][0].numpy())
+        rows, cols = np.nonzero(field.maps.occupied[0].numpy())
         wrc = hg.world_to_cell(_to_world(field, rows, cols, start))
         ok = hg.in_bounds(wrc)
         near = ndimage.binary_dilation(house.occupancy, iterations=3)  # 0.15 m tolerance
@@ -254,32 +254,32 @@ def test_planning_window_matches_fast_marching_on_the_whole_map():
     obs = obs_of((0.3, -0.2, 0.4))
     windowed, whole = GRField(), GRField(planning_margin=100.0)
     out_w, out_f = windowed.update(obs, goal), whole.update(obs, goal)
-    seen = windowed.last_maps["explored"][0] & torch.isfinite(whole.last_maps["travel"][0])
-    t_w, t_f = windowed.last_maps["travel"][0][seen], whole.last_maps["travel"][0][seen]
+    seen = windowed.maps.explored[0] & torch.isfinite(whole.maps.travel[0])
+    t_w, t_f = windowed.maps.travel[0][seen], whole.maps.travel[0][seen]
     assert seen.sum() > 200 and float(t_f.max()) > 3.0
     torch.testing.assert_close(t_w, t_f, rtol=1e-4, atol=1e-4)
     torch.testing.assert_close(out_w.waypoints, out_f.waypoints, rtol=0, atol=1e-4)
-    assert torch.isinf(windowed.last_maps["travel"][0][~seen]).any()
+    assert torch.isinf(windowed.maps.travel[0][~seen]).any()
 
 
 def test_unseen_goal_field_explores_towards_the_frontier():
     field = GRField()
     out = field.update(obs_of((0.0, 0.0, 0.0), room=(-5.0, 2.0, -20.0, 20.0)))
     assert out.has_path.all() and not out.goal_seen.any()
-    last = field.last_maps
-    frontier = last["frontier"][0]
+    last = field.maps
+    frontier = last.frontier[0]
     assert frontier.any()
     # descending T from the robot ends on a frontier cell, with T falling all the way
     origin = torch.tensor([field.grid.origin_x, field.grid.origin_y])
     pose = torch.zeros(1, 3)
     pts = ego_to_world(out.waypoints, pose)[0] - origin  # (K, 2) from the grid corner
     cells = torch.floor(pts / field.grid.cell_size).long()  # (K, 2) as (col, row)
-    t_path = last["travel"][0][cells[:, 1], cells[:, 0]]
+    t_path = last.travel[0][cells[:, 1], cells[:, 0]]
     assert torch.all(t_path[1:] <= t_path[:-1] + 1e-6)
     assert frontier[cells[-1, 1], cells[-1, 0]] or t_path[-1] == 0
     # the potential has its wells on the attracting (frontier) mass, not in the open
-    phi = last["phi_hat"][0]
-    assert float(phi[frontier].mean()) < float(phi[last["explored"][0] & ~frontier].mean())
+    phi = last.phi_hat[0]
+    assert float(phi[frontier].mean()) < float(phi[last.explored[0] & ~frontier].mean())
 
 
 def test_snap_start_steps_out_of_the_inflated_margin():
@@ -298,7 +298,7 @@ def test_robot_next_to_a_wall_still_plans_away_from_it():
     room = (-4.0, D, -3.0, 3.0)
     field.update(obs_of((0.0, 0.0, math.pi), room=room))  # look back into the room first
     out = field.update(obs_of((0.0, 0.0, 0.0), room=room))
-    travel = field.last_maps["travel"][0]
+    travel = field.maps.travel[0]
     g = field.grid
     assert torch.isinf(travel[int(-g.origin_y / g.cell_size), int(-g.origin_x / g.cell_size)])
     assert out.has_path.all() and torch.isfinite(out.waypoints).all()
@@ -314,9 +314,9 @@ def test_features_are_read_from_their_own_tick_and_cost_the_update_nothing():
         "mapping", "masses", "poisson", "metric", "fast_marching", "path"
     ]  # fmt: skip
     out2 = field.update(obs_of(second))
-    maps = field.last_maps
-    assert maps["occupied"].any() and "phi_hat" not in maps  # the navigator's reads solve nothing
-    assert maps["phi_hat"] is maps["phi_hat"] and "phi_hat" in maps  # solved once when read
+    maps = field.maps
+    assert maps.occupied.any() and "phi_hat" not in vars(maps)  # the navigator's reads: no solve
+    assert maps.phi_hat is maps.phi_hat and "phi_hat" in vars(maps)  # solved once when read
     ref = GRField(map_size=96)
     ref_out = ref.update(obs_of(first))
     # read after a later update, the first tick's features are still those of its own maps
@@ -361,15 +361,15 @@ def test_sub_cells_count_the_same_points_and_marked_obstacles_fill_them():
     field.update(obs_of((0.0, 0.4, 2.0)))
     sub = field.sub_hits[0, 0].reshape(96, 3, 96, 3).sum(dim=(1, 3))  # (96, 96) per cell
     assert float(sub.sum()) > 100
-    torch.testing.assert_close(sub, field.map_state[0, OCC_HITS], rtol=0, atol=0)
-    before = field.sub_hits.clone(), field.map_state.clone()
+    torch.testing.assert_close(sub, field.evidence()[OCC_HITS], rtol=0, atol=0)
+    before = field.sub_hits.clone(), field.evidence()
     cells = torch.tensor([[40, 41], [50, 52]])
     field.add_obstacle_evidence(cells, 100.0)
-    assert field.map_state[0, OCC_HITS, 40, 41] >= 100.0
+    assert field.evidence()[OCC_HITS, 40, 41] >= 100.0
     assert bool((field.sub_hits[0, 0, 120:123, 123:126] >= 100.0).all())
     assert float(field.sub_hits.sum() - before[0].sum()) == 2 * 9 * 100.0
     field.add_obstacle_evidence(cells, -100.0)  # taken back: as before
-    assert torch.equal(field.sub_hits, before[0]) and torch.equal(field.map_state, before[1])
+    assert torch.equal(field.sub_hits, before[0]) and torch.equal(field.evidence(), before[1])
     with pytest.raises(ValueError, match="clearance_factor"):
         GRFieldConfig(clearance_factor=0)
 

@@ -3,13 +3,15 @@
 Data flow: :mod:`.config` (``GRFieldConfig``, feature channels) -> :mod:`.mapping`
 (depth -> allocentric evidence map) -> :mod:`.physics` (masses, potential, metric,
 geodesics; pure maths) -> :mod:`.planning` (``GRField``: one update per planner tick,
-waypoints and egocentric features) -> :mod:`.picture` (top-down image for reports).
+waypoints and egocentric features; its allocentric layers as :mod:`.field_maps`'
+``FieldMaps``) -> :mod:`.picture` (top-down image for reports).
 :mod:`.navigator` (``Navigator``) is S2's behaviour on the field: look around, explore,
 approach, verify, recover, stop; :mod:`.navigator_config` its settings, :mod:`.goal_checks`
 its checks of a goal before a STOP, :mod:`.map_edits` its own marks on the map.
 """
 
 from vla_gr.core.gr_field.config import FEATURE_NAMES, GRFieldConfig
+from vla_gr.core.gr_field.field_maps import FieldMaps
 from vla_gr.core.gr_field.mapping import update_map
 from vla_gr.core.gr_field.navigator import MODES, Navigator, NavPlan
 from vla_gr.core.gr_field.navigator_config import NavigatorConfig
@@ -19,6 +21,7 @@ from vla_gr.core.gr_field.planning import GRField, GRFieldOutput, snap_start
 
 __all__ = [
     "FEATURE_NAMES",
+    "FieldMaps",
     "GRField",
     "GRFieldConfig",
     "GRFieldOutput",

@@ -1,5 +1,6 @@
-"""The navigator's edits of its GR field's map: obstacles it adds, noise it forgets, cells it
-counts as seen.
+"""The navigator's edits of its GR field's map, made through the field's own methods
+(``add_obstacle_evidence``, ``forget_obstacle_noise``, ``mark_unseen_free``): obstacles it adds,
+noise it forgets, cells it counts as seen.
 
 - virtual obstacles: evidence added in front of a blocked robot so that the path bends around
   what the camera cannot see; forgotten together when no path is left (they may close a door);
@@ -17,7 +18,7 @@ import math
 import numpy as np
 import torch
 
-from vla_gr.core.gr_field.mapping import FREE_HITS, OCC_HITS, points_to_cells
+from vla_gr.core.gr_field.mapping import points_to_cells
 from vla_gr.core.gr_field.planning import GRField
 
 __all__ = ["MapEdits"]
@@ -46,7 +47,7 @@ class MapEdits:
         """Add obstacle evidence to the cells within ``radius`` of map-frame point ``xy`` (2,);
         a virtual obstacle is forgotten when no path is left, a ``lasting`` one never."""
         cells = self.disk_cells(xy, radius)  # (D, 2)
-        if self.field.map_state.shape[0] == 0 or len(cells) == 0:
+        if self.field.batch_size == 0 or len(cells) == 0:
             return
         self.field.add_obstacle_evidence(cells, self.config.virtual_obstacle_hits)
         if not lasting:
@@ -60,22 +61,15 @@ class MapEdits:
 
     def forget_noise(self) -> None:
         """Drop obstacle evidence that free-space evidence outvotes (see ``noise_*``)."""
-        if self.field.map_state.shape[0] == 0:
+        if self.field.batch_size == 0:
             return
-        cfg, state = self.config, self.field.map_state[0]  # (4, H, W)
-        occ, free = state[OCC_HITS], state[FREE_HITS]  # (H, W) each
-        noise = (occ > 0) & (occ <= cfg.noise_max_hits) & (free >= cfg.noise_free_ratio * occ)
-        occ[noise] = 0.0
+        self.field.forget_obstacle_noise(self.config.noise_max_hits, self.config.noise_free_ratio)
 
     def mark_visited(self, xy: np.ndarray, radius: float) -> None:
         """Count the unseen cells within ``radius`` of ``xy`` (2,) as seen free (one hit).
 
         Obstacle evidence still wins over it, so a cell seen occupied stays occupied.
         """
-        if radius <= 0 or self.field.map_state.shape[0] == 0:
+        if radius <= 0 or self.field.batch_size == 0:
             return
-        cells = self.disk_cells(xy, radius)  # (D, 2)
-        state = self.field.map_state[0]  # (4, H, W)
-        seen = (state[:, cells[:, 0], cells[:, 1]] > 0).any(dim=0)  # (D,)
-        cells = cells[~seen]
-        state[FREE_HITS, cells[:, 0], cells[:, 1]] += 1.0
+        self.field.mark_unseen_free(self.disk_cells(xy, radius))  # (D, 2) cells

@@ -243,3 +243,20 @@ def map_layers(state: torch.Tensor, min_hits: float = 1.0) -> dict[str, torch.Te
     explored = occupied | (state[:, FREE_HITS] > 0) | (state[:, POINT_HITS] > 0)  # (B, H, W)
     goal = state[:, GOAL_SUM] / state[:, POINT_HITS].clamp_min(1.0)  # (B, H, W)
     return {"occupied": occupied, "explored": explored, "free": explored & ~occupied, "goal": goal}
+
+
+def forget_noise(state: torch.Tensor, max_hits: float, free_ratio: float) -> None:
+    """Zero the obstacle hits of the cells of ``state`` (4, H, W) that hold at most
+    ``max_hits`` of them and at least ``free_ratio`` times as many free-space hits (grazing
+    points of a door jamb), in place."""
+    occ, free = state[OCC_HITS], state[FREE_HITS]  # (H, W) each, views
+    noise = (occ > 0) & (occ <= max_hits) & (free >= free_ratio * occ)  # (H, W)
+    occ[noise] = 0.0
+
+
+def mark_unseen_free(state: torch.Tensor, cells: torch.Tensor) -> None:
+    """One free-space hit to each of ``cells`` (D, 2) as (row, col) that holds no evidence
+    yet in ``state`` (4, H, W), in place; cells seen before (obstacles too) are left alone."""
+    seen = (state[:, cells[:, 0], cells[:, 1]] > 0).any(dim=0)  # (D,)
+    cells = cells[~seen]  # (D', 2)
+    state[FREE_HITS, cells[:, 0], cells[:, 1]] += 1.0

@@ -151,7 +151,7 @@ class Navigator:
             maxlen=self.steps_to_ticks(self.config.blocked_steps) + 1
         )  # ((2,), the plan drove ahead) per driving tick
         self.map_edits = MapEdits(self.field, self.config)  # virtual obstacles, noise, visited
-        self.field.config.robot_radius = self.field_config.robot_radius
+        self.field.set_planning_radius(self.field_config.robot_radius)
         self._radius = self.field_config.robot_radius  # the planning radius outside tight mode
         self.tight_left = 0
         self.unreachable_count = 0  # ticks without a way to the goal, since tight planning
@@ -168,7 +168,7 @@ class Navigator:
         self.ever_seen_goal = False
         self.tick_goal_pixels = 0  # goal pixels of this tick that landed on the map
         self.stop_evidence: dict[str, float] = {}  # what S2 saw on the tick it asked to STOP
-        self.checks = GoalChecks(self.config, shape, self.field.config.cell_size)
+        self.checks = GoalChecks(self.config, shape, self.field.cell_size)
         if self.local is not None:
             self.local.reset()
         self._tick_frame, self._projected = None, None  # this tick's depth, pose; their cells
@@ -224,17 +224,17 @@ class Navigator:
         if self.tight_left > 0:
             self.tight_left -= 1
             if self.tight_left == 0:
-                self.field.config.robot_radius = self._radius
+                self.field.set_planning_radius(self._radius)
         if self.local is not None:
             self.local.observe(*self._project()[2:])
         self.map_edits.mark_visited(pose[0, :2].numpy(), cfg.visited_clear_radius)
         self.map_edits.forget_noise()
         out = self.field.update({"depth": depth, "pose": pose}, like, goal_gate=gate)
         self.last_output = out
-        maps = self.field.last_maps
-        goal_cells = maps["goal"][0].numpy()  # (H, W) confirmed goal cells
+        maps = self.field.maps
+        goal_cells = maps.goal[0].numpy()  # (H, W) confirmed goal cells
         self.committed = bool(goal_cells.any())
-        robot_xy = maps["robot_xy"][0].numpy()  # (2,) from the grid corner
+        robot_xy = maps.robot_xy[0].numpy()  # (2,) from the grid corner
         distance, nearest = self._goal_distance(goal_cells, robot_xy)
         votes = float(self.goal_votes.max()) if self.goal_votes.any() else 0.0
         confidence = min(1.0, votes / cfg.confirm_ticks)
@@ -363,7 +363,7 @@ class Navigator:
         confirmed = self.checks.confirmed_goal(self.goal_votes)  # (H, W)
         grown = ndimage.binary_dilation(confirmed, iterations=rim) if rim else confirmed
         labels, _ = ndimage.label(grown, np.ones((3, 3), bool))
-        row, col = (np.asarray(centre) / self.field.config.cell_size).astype(int)[::-1]
+        row, col = (np.asarray(centre) / self.field.cell_size).astype(int)[::-1]
         if labels[row, col]:
             return labels == labels[row, col]
         goal = np.zeros_like(confirmed)
@@ -410,9 +410,9 @@ class Navigator:
         gets the robot nearer)."""
         if self.local is None:
             return None
-        maps = self.field.last_maps
+        maps = self.field.maps
         path = self.local.follow(
-            robot_xy, maps["travel"][0].numpy(), maps["occupied"][0].numpy()
+            robot_xy, maps.travel[0].numpy(), maps.occupied[0].numpy()
         )  # (N, 2) from the grid corner
         if path is None:
             return None
@@ -463,12 +463,12 @@ class Navigator:
         """Distance (m) to the nearest goal cell centre in line of sight, and that centre (2,)."""
         if not goal_cells.any():
             return math.inf, None
-        h = self.field.config.cell_size
+        h = self.field.cell_size
         rows, cols = np.nonzero(goal_cells)
         centres = (np.stack([cols, rows], axis=-1) + 0.5) * h  # (M, 2) x, y from the corner
         dist = np.linalg.norm(centres - robot_xy, axis=-1)  # (M,)
         near_goal = ndimage.binary_dilation(goal_cells, iterations=self.config.goal_halo_cells)
-        occupied = self.field.last_maps["occupied"][0].numpy() & ~near_goal  # (H, W)
+        occupied = self.field.maps.occupied[0].numpy() & ~near_goal  # (H, W)
         for k in np.argsort(dist)[:8]:
             if self._line_of_sight(robot_xy, centres[k], occupied):
                 return float(dist[k]), centres[k]
@@ -477,7 +477,7 @@ class Navigator:
 
     def _line_of_sight(self, a: np.ndarray, b: np.ndarray, occupied: np.ndarray) -> bool:
         """No occupied (non-goal) cell on the segment a -> b (metric, from the grid corner)."""
-        h = self.field.config.cell_size
+        h = self.field.cell_size
         n = max(2, int(np.ceil(np.linalg.norm(b - a) / (0.5 * h))) + 1)
         t = np.linspace(0.0, 1.0, n)[:, None]  # (n, 1)
         rc = np.floor((a[None] * (1 - t) + b[None] * t)[:, ::-1] / h).astype(int)  # (n, 2)
@@ -496,7 +496,7 @@ class Navigator:
         """Plan for a robot of ``tight_radius`` for the next ``tight_steps``."""
         self.unreachable_count = 0
         if self.config.tight_radius < self._radius:
-            self.field.config.robot_radius = self.config.tight_radius
+            self.field.set_planning_radius(self.config.tight_radius)
             self.tight_left = self.steps_to_ticks(self.config.tight_steps)
 
     def _blocked(self) -> bool:

@@ -14,6 +14,12 @@ One :meth:`GRField.update` per planner tick:
 6. outputs: the next waypoints of the geodesic (B, K, 2) in the robot frame, egocentric
    heading-aligned features (B, C, h, w) and a picture for reports (:meth:`GRField.render`);
    the features and the full potential behind them and the picture are computed when read.
+   The allocentric layers are :attr:`GRField.maps` (a :class:`FieldMaps`).
+
+The field owns its state: others read it through ``maps``, ``evidence()`` and ``cell_size``,
+edit the map through ``add_obstacle_evidence``, ``forget_obstacle_noise`` and
+``mark_unseen_free``, and change the robot radius planning uses through
+``set_planning_radius`` (the config is never written).
 
 Next in the data flow: :mod:`vla_gr.core.gr_field.picture` (its top-down picture).
 """
@@ -33,12 +39,15 @@ import torch.nn.functional as F
 from torch import nn
 
 from vla_gr.core.gr_field.config import FEATURE_NAMES, GRFieldConfig
+from vla_gr.core.gr_field.field_maps import FieldMaps
 from vla_gr.core.gr_field.mapping import (
     OCC_HITS,
     centred_grid,
     count_obstacle_points,
     empty_map,
+    forget_noise,
     map_layers,
+    mark_unseen_free,
     update_map,
 )
 from vla_gr.core.gr_field.physics import (
@@ -105,22 +114,6 @@ class GRFieldOutput:
         return self.make_features()
 
 
-class _TickMaps(dict):
-    """The allocentric maps of one update; ``phi_hat``, the full potential of the update's
-    density ``rho`` (B, H, W) rescaled to [0, 1], is solved on first access and then kept."""
-
-    def __init__(self, maps: dict, rho: torch.Tensor, cell_size: float, G: float) -> None:
-        super().__init__(maps)
-        self._rho, self._cell_size, self._G = rho, cell_size, G
-
-    def __missing__(self, key: str) -> torch.Tensor:
-        if key != "phi_hat":
-            raise KeyError(key)
-        phi = solve_poisson(self._rho, self._cell_size, self._G)  # (B, H, W)
-        self[key] = conformal_log_factor(phi, torch.zeros_like(phi), 1.0, 0.0)  # (B, H, W)
-        return self[key]
-
-
 class GRField(nn.Module):
     """Batched GR field with per-episode map state (see module docstring)."""
 
@@ -135,7 +128,10 @@ class GRField(nn.Module):
         self.register_buffer("map_state", torch.zeros(0, 4, *self.grid.shape), persistent=False)
         #: obstacle points per sub-cell (B, 1, H * k, W * k), k = clearance_factor (k > 1 only)
         self.register_buffer("sub_hits", self._empty_sub_hits(0), persistent=False)
-        self._last: dict | None = None
+        self._last: FieldMaps | None = None
+        # the robot radius (m) planning uses now: config.robot_radius until
+        # set_planning_radius() changes it (the config itself is never written)
+        self._planning_radius = float(config.robot_radius)
         #: seconds per part of the last update: mapping, masses, poisson, metric,
         #: fast_marching (inflation + travel time + gradient), path (the features and the full
         #: potential are computed when read, outside the update)
@@ -146,6 +142,31 @@ class GRField(nn.Module):
     @property
     def num_channels(self) -> int:
         return len(FEATURE_NAMES)
+
+    @property
+    def cell_size(self) -> float:
+        """Metres per map cell."""
+        return self.config.cell_size
+
+    @property
+    def batch_size(self) -> int:
+        """Maps held: 0 before the first update (and after a full reset)."""
+        return self.map_state.shape[0]
+
+    @property
+    def planning_radius(self) -> float:
+        """The robot radius (m) the next update plans for (see :meth:`set_planning_radius`)."""
+        return self._planning_radius
+
+    def set_planning_radius(self, radius: float) -> None:
+        """Plan for a robot of ``radius`` m from the next update on (the robot's footprint
+        marked free, the goal stand-off, where its centre fits, the start's snap distance);
+        it holds until set again, across resets; pass ``config.robot_radius`` to restore the
+        configured one."""
+        radius = float(radius)
+        if not (math.isfinite(radius) and radius >= 0.0):
+            raise ValueError(f"planning radius {radius} must be finite and >= 0")
+        self._planning_radius = radius
 
     def _empty_sub_hits(self, batch: int) -> torch.Tensor:
         """Zero sub-cell counts (B, 1, H * k, W * k); (B, 1, 0, 0) when k = 1 (not kept)."""
@@ -232,7 +253,7 @@ class GRField(nn.Module):
             image_shape=tuple(depth.shape[1:]),
             camera_xy=pose[:, :2] + cfg.camera_forward_offset * heading,
             floor_height=cfg.floor_height, max_height=cfg.robot_height,
-            robot_radius=cfg.robot_radius,
+            robot_radius=self._planning_radius,
         )  # fmt: skip
         if cfg.clearance_factor > 1:
             count_obstacle_points(
@@ -283,7 +304,7 @@ class GRField(nn.Module):
 
         # goals sit on obstacles: the robot's centre reaches the free cells within its radius,
         # grown from the goal one cell at a time so that the halo never crosses a wall
-        steps = math.ceil((cfg.robot_radius + h) / h)
+        steps = math.ceil((self._planning_radius + h) / h)
         halo = grow_through(goal_cells, goal_cells | ~occupied, steps)  # (B, H, W)
         standoff = halo & explored & ~occupied  # (B, H, W) seen free cells beside the goal
         has_standoff = standoff.flatten(1).any(dim=1)[:, None, None]  # (B, 1, 1)
@@ -297,11 +318,11 @@ class GRField(nn.Module):
         tick("fast_marching")  # travel (B, H, W), grads (B, 2, H, W), choice (B,)
         waypoints, has_path, distance = self._waypoints(travel, grads, robot_xy, pose)
         tick("path")
-        self._last = last = _TickMaps({
-            "psi": psi, "travel": travel, "occupied": occupied, "explored": explored,
-            "frontier": frontier, "goal": goal_cells, "robot_xy": robot_xy, "yaw": pose[:, 2],
-            "has_path": has_path,
-        }, rho, h, cfg.G)  # fmt: skip
+        self._last = last = FieldMaps(
+            psi=psi, travel=travel, occupied=occupied, explored=explored, frontier=frontier,
+            goal=goal_cells, robot_xy=robot_xy, yaw=pose[:, 2], has_path=has_path,
+            rho=rho, cell_size=h, G=cfg.G,
+        )  # fmt: skip
         goal_layer = layers["goal"]
 
         def features() -> torch.Tensor:  # (B, C, h, w) from this tick's maps
@@ -309,7 +330,7 @@ class GRField(nn.Module):
                 torch.isfinite(travel), (travel / cfg.travel_clip).clamp(max=1.0), 1.0
             )  # (B, H, W)
             allo = torch.stack(
-                [last["phi_hat"], psi, t_feat, grads[:, 0], grads[:, 1],
+                [last.phi_hat, psi, t_feat, grads[:, 0], grads[:, 1],
                  occupied.float(), explored.float(), goal_layer, frontier.float()], dim=1,
             )  # (B, C, H, W)  # fmt: skip
             return self._egocentric(allo, pose)
@@ -403,7 +424,7 @@ class GRField(nn.Module):
         """
         cfg, h, k = self.config, self.config.cell_size, self.config.clearance_factor
         if k == 1:
-            return inflate_obstacles(occ, cfg.robot_radius + 0.5 * h, h)
+            return inflate_obstacles(occ, self._planning_radius + 0.5 * h, h)
         rows, cols = occ.shape
         r0, c0 = win[0].start * k, win[1].start * k
         sub = self.sub_hits[b, 0, r0 : r0 + rows * k, c0 : c0 + cols * k].cpu().numpy() > 0
@@ -411,15 +432,39 @@ class GRField(nn.Module):
         filled = occ & ~sub.any(axis=(1, 3))  # (h', w') occupied cells with no point
         sub_occ = (sub & occ[:, None, :, None]) | filled[:, None, :, None]  # (h', k, w', k)
         sub_occ = sub_occ.reshape(rows * k, cols * k)
-        radius = cfg.robot_radius + h / k / math.sqrt(2.0) + cfg.clearance_margin
+        radius = self._planning_radius + h / k / math.sqrt(2.0) + cfg.clearance_margin
         no_fit = inflate_obstacles(sub_occ, radius, h / k)
         return occ | no_fit.reshape(rows, k, cols, k).all(axis=(1, 3))
+
+    # ------------------------------------------------------------------ map edits
+
+    def _map(self, index: int) -> torch.Tensor:
+        """The evidence map (4, H, W) of batch element ``index`` (a view: edits write it)."""
+        if not 0 <= index < self.map_state.shape[0]:
+            raise ValueError(f"no map {index} in a batch of {self.map_state.shape[0]}")
+        return self.map_state[index]  # (4, H, W)
+
+    def evidence(self, index: int = 0) -> torch.Tensor:
+        """A copy (4, H, W) of the evidence counts of batch element ``index``, channels
+        :data:`~vla_gr.core.gr_field.mapping.OCC_HITS` etc."""
+        return self._map(index).clone()  # (4, H, W)
+
+    def forget_obstacle_noise(self, max_hits: float, free_ratio: float, index: int = 0) -> None:
+        """Drop the obstacle evidence of cells of batch element ``index`` with at most
+        ``max_hits`` hits that ``free_ratio`` times as many free-space hits outvote
+        (:func:`~vla_gr.core.gr_field.mapping.forget_noise`); sub-cell counts stay."""
+        forget_noise(self._map(index), max_hits, free_ratio)
+
+    def mark_unseen_free(self, cells: torch.Tensor, index: int = 0) -> None:
+        """Count the ``cells`` (D, 2) as (row, col) of batch element ``index`` that hold no
+        evidence yet as seen free (one free-space hit); cells seen before are left alone."""
+        mark_unseen_free(self._map(index), cells)
 
     def add_obstacle_evidence(self, cells: torch.Tensor, hits: float, index: int = 0) -> None:
         """Add ``hits`` (negative: take back) of obstacle evidence to the distinct ``cells``
         (D, 2) as (row, col) of batch element ``index``, and to each of their sub-cells;
         counts stay >= 0."""
-        occ = self.map_state[index, OCC_HITS]  # (H, W)
+        occ = self._map(index)[OCC_HITS]  # (H, W)
         occ[cells[:, 0], cells[:, 1]] += hits
         occ.clamp_(min=0.0)
         k = self.config.clearance_factor
@@ -506,26 +551,21 @@ class GRField(nn.Module):
     @property
     def _snap_radius(self) -> float:
         """How far (m) the robot may be from a cell its centre fits in (mapping slack)."""
-        return self.config.robot_radius + 1.5 * self.config.cell_size
+        return self._planning_radius + 1.5 * self.config.cell_size
 
     @property
-    def last_maps(self) -> dict[str, torch.Tensor]:
-        """Allocentric layers of the last update, each (B, H, W) in the map grid.
-
-        ``phi_hat`` (potential in [0, 1], solved on first read), ``psi``, ``travel`` (T, inf
-        where unreachable), ``occupied``, ``explored``, ``frontier``, ``goal`` (goal cells,
-        bool); plus
-        ``robot_xy`` (B, 2) metres from the grid corner, ``yaw`` (B,), ``has_path`` (B,).
-        """
+    def maps(self) -> FieldMaps:
+        """The allocentric layers of the last update (see :class:`FieldMaps` for each one's
+        shape); read them, never write them."""
         if self._last is None:
-            raise RuntimeError("GRField.last_maps needs a prior update()")
+            raise RuntimeError("GRField.maps needs a prior update()")
         return self._last
 
     def christoffel(self) -> torch.Tensor:
         """Christoffel symbols (B, 2, 2, 2, H, W) of the last metric (call after update)."""
         if self._last is None:
             raise RuntimeError("GRField.christoffel() needs a prior update()")
-        return christoffel_conformal(self._last["psi"], self.config.cell_size)
+        return christoffel_conformal(self._last.psi, self.config.cell_size)
 
     def render(self, index: int = 0, scale: int = 2) -> np.ndarray:
         """Top-down picture (H * scale, W * scale, 3) uint8 of batch element ``index``.
@@ -535,17 +575,17 @@ class GRField(nn.Module):
         """
         if self._last is None:
             raise RuntimeError("GRField.render() needs a prior update()")
-        last, h = self.last_maps, self.config.cell_size
-        if not 0 <= index < last["travel"].shape[0]:
-            raise ValueError(f"index={index} out of range for batch {last['travel'].shape[0]}")
-        robot = last["robot_xy"][index].cpu().numpy()  # (2,) metric
+        last, h = self._last, self.config.cell_size
+        if not 0 <= index < last.travel.shape[0]:
+            raise ValueError(f"index={index} out of range for batch {last.travel.shape[0]}")
+        robot = last.robot_xy[index].cpu().numpy()  # (2,) metric
         path = None
-        if bool(last["has_path"][index]):
-            metric = extract_path(last["travel"][index].cpu().numpy(), robot, h, 0.5)  # (N, 2)
+        if bool(last.has_path[index]):
+            metric = extract_path(last.travel[index].cpu().numpy(), robot, h, 0.5)  # (N, 2)
             path = metric[:, ::-1] / h - 0.5  # (N, 2) fractional (row, col)
-        layer = {k: last[k][index].cpu().numpy() for k in ("occupied", "explored", "frontier")}
         return render_field(
-            last["phi_hat"][index].cpu().numpy(), layer["occupied"], layer["explored"],
-            layer["frontier"], last["goal"][index].cpu().numpy(), path,
-            (robot[1] / h - 0.5, robot[0] / h - 0.5), float(last["yaw"][index]), scale,
+            last.phi_hat[index].cpu().numpy(), last.occupied[index].cpu().numpy(),
+            last.explored[index].cpu().numpy(), last.frontier[index].cpu().numpy(),
+            last.goal[index].cpu().numpy(), path,
+            (robot[1] / h - 0.5, robot[0] / h - 0.5), float(last.yaw[index]), scale,
         )  # fmt: skip
