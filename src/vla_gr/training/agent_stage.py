@@ -5,11 +5,14 @@ segmenter (:mod:`.object_category`).
 Each reads the agent of a checkpoint, changes settings under one config key, trains that
 part with the rest loaded from the checkpoint, and writes the whole agent as a new checkpoint
 that ``vla-gr eval`` loads like any other. The two S2 checks learn from labelled stored frames
-(:func:`labelled_frames`) with one loop (:func:`fit_part`).
+(:func:`labelled_frames`) with one loop (:func:`fit_part`), one stage
+(:func:`train_frame_part`) and one command line (:func:`frame_part_parser`,
+:func:`add_frame_training_arguments`, :func:`train_from_args`).
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import logging
 import time
@@ -25,12 +28,16 @@ from vla_gr.errors import UserError
 log = logging.getLogger(__name__)
 
 __all__ = [
+    "add_frame_training_arguments",
     "build_agent_from",
     "finish_part",
     "fit_part",
+    "frame_part_parser",
     "graft_part",
     "labelled_frames",
     "part_setting",
+    "train_frame_part",
+    "train_from_args",
     "write_agent",
 ]
 
@@ -259,3 +266,114 @@ def finish_part(
     write_agent(policy.eval(), loaded, config, out, {f"{part}_training": summary})
     log.info("wrote %s", out)
     return summary
+
+
+def train_frame_part(
+    init: str | Path,
+    out: str | Path,
+    frames: dict[str, np.ndarray],
+    labels: Sequence[str],
+    settings: Sequence[str],
+    reject_threshold: float,
+    eval_frames: dict[str, np.ndarray] | None,
+    part: str,
+    labels_key: str,
+    role: str,
+    threshold_key: str,
+    batch_loss: Callable[..., torch.Tensor],
+    evaluate: Callable[[torch.nn.Module, dict[str, np.ndarray]], dict],
+    score: str,
+    name: str,
+    seed: int,
+    **fit,
+) -> dict:
+    """Train the fresh ``model.<part>`` of the agent of ``init`` on ``frames`` (labelled in
+    ``labels``' order, which must be its ``<part>.<labels_key>``) and write the agent, with
+    ``navigator.<threshold_key>`` set to ``reject_threshold``, to ``out``; returns the summary.
+
+    ``batch_loss(module, rgb, depth, label)`` and ``evaluate(module, frames)`` get the part
+    (the ``role`` named in errors); ``score``, ``name`` and ``fit`` (``steps``,
+    ``batch_size``, ``lr``, ``val_fraction``, ``eval_every``) go to :func:`fit_part`.
+    """
+    torch.manual_seed(seed)
+    policy, loaded, config = build_agent_from(
+        init, part, settings, keep_part=False, forced=[f"{part}.enabled=true"]
+    )
+    predicted = list(getattr(getattr(policy.config, part), labels_key))
+    if predicted != list(labels):
+        raise UserError(
+            f"frames are labelled in {list(labels)} but the {role} predicts "
+            f"{predicted} ({part}.{labels_key})"
+        )
+    setattr(config.model.navigator, threshold_key, float(reject_threshold))
+    module = getattr(policy, part)
+    policy.requires_grad_(False)
+    summary, _ = fit_part(
+        module,
+        frames,
+        lambda rgb, depth, label: batch_loss(module, rgb, depth, label),
+        lambda val: evaluate(module, val),
+        score,
+        name,
+        seed=seed,
+        **fit,
+    )
+    return finish_part(
+        policy, loaded, config, out, part, summary,
+        lambda frames: evaluate(module, frames), eval_frames,
+    )  # fmt: skip
+
+
+def frame_part_parser(
+    prog: str, description: str | None, role: str, store_required: bool = True
+) -> argparse.ArgumentParser:
+    """The command line of a frame-trained part: ``init``, ``out`` and ``--store``."""
+    parser = argparse.ArgumentParser(prog=prog, description=description)
+    parser.add_argument("init", help=f"the dual-system agent checkpoint (kept but the {role})")
+    parser.add_argument("out", help="the checkpoint folder to write (replaced)")
+    parser.add_argument(
+        "--store", required=store_required, help="expert store with the training frames"
+    )
+    return parser
+
+
+def add_frame_training_arguments(
+    parser: argparse.ArgumentParser,
+    part: str,
+    steps: int,
+    batch_size: int,
+    reject_threshold: float,
+    threshold_help: str,
+) -> None:
+    """Add the frame selection and training options (``--first`` to ``--set``) to ``parser``."""
+    parser.add_argument("--first", type=int, default=0, help="first stored episode to read")
+    parser.add_argument("--episodes", type=int, default=None, help="stored episodes to read")
+    parser.add_argument("--stride", type=int, default=8, help="every stride-th frame")
+    parser.add_argument("--eval-store", default=None, help="a store of unseen houses to report on")
+    parser.add_argument("--steps", type=int, default=steps)
+    parser.add_argument("--batch-size", type=int, default=batch_size)
+    parser.add_argument("--lr", type=float, default=2e-3)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--reject-threshold", type=float, default=reject_threshold, help=threshold_help
+    )
+    parser.add_argument("--set", nargs="*", default=[], help=f"{part}.* settings")
+
+
+def train_from_args(
+    args: argparse.Namespace,
+    labels: Sequence[str],
+    read_frames: Callable[..., dict[str, np.ndarray]],
+    train: Callable[..., dict],
+) -> None:
+    """Read the frames ``args`` select with ``read_frames(store, labels, first, count,
+    stride)`` (and those of ``--eval-store``) and ``train`` on them with ``args``' options."""
+    frames = read_frames(args.store, labels, args.first, args.episodes, args.stride)
+    eval_frames = (
+        read_frames(args.eval_store, labels, stride=args.stride) if args.eval_store else None
+    )
+    train(
+        args.init, args.out, frames, labels, steps=args.steps, batch_size=args.batch_size,
+        lr=args.lr, seed=args.seed, settings=args.set, reject_threshold=args.reject_threshold,
+        eval_frames=eval_frames,
+    )  # fmt: skip

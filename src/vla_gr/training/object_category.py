@@ -25,13 +25,13 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from vla_gr.errors import UserError
 from vla_gr.training.agent_stage import (
-    build_agent_from,
-    finish_part,
-    fit_part,
+    add_frame_training_arguments,
+    frame_part_parser,
     labelled_frames,
     part_setting,
+    train_frame_part,
+    train_from_args,
 )
 from vla_gr.training.command import run_command
 from vla_gr.training.object_labels import frame_categories
@@ -112,43 +112,18 @@ def train_object_category(
 ) -> dict:
     """Train the segmenter on ``frames`` (labelled in ``categories``' order; background
     pixels weigh ``background_weight``) and write the agent to ``out``; returns the summary."""
-    torch.manual_seed(seed)
-    policy, loaded, config = build_agent_from(
-        init,
-        "object_category",
-        settings,
-        keep_part=False,
-        forced=["object_category.enabled=true"],
-    )
-    if list(policy.config.object_category.categories) != list(categories):
-        raise UserError(
-            f"frames are labelled in {list(categories)} but the segmenter predicts "
-            f"{list(policy.config.object_category.categories)} (object_category.categories)"
-        )
-    config.model.navigator.object_reject_threshold = float(reject_threshold)
-    segmenter = policy.object_category
     weight = torch.ones(1 + len(categories))  # (1 + K,)
     weight[0] = background_weight
-    policy.requires_grad_(False)
-    summary, _ = fit_part(
-        segmenter,
-        frames,
-        lambda rgb, depth, label: F.cross_entropy(
+    return train_frame_part(
+        init, out, frames, categories, settings, reject_threshold, eval_frames,
+        part="object_category", labels_key="categories", role="segmenter",
+        threshold_key="object_reject_threshold",
+        batch_loss=lambda segmenter, rgb, depth, label: F.cross_entropy(
             segmenter(rgb, depth), label.long(), weight=weight
         ),
-        lambda val: segmentation_scores(segmenter, val),
-        "mean_iou",
-        "object category",
-        steps,
-        batch_size,
-        lr,
-        seed,
-        val_fraction,
-        eval_every,
-    )
-    return finish_part(
-        policy, loaded, config, out, "object_category", summary,
-        lambda frames: segmentation_scores(segmenter, frames), eval_frames,
+        evaluate=segmentation_scores, score="mean_iou", name="object category", seed=seed,
+        steps=steps, batch_size=batch_size, lr=lr, val_fraction=val_fraction,
+        eval_every=eval_every,
     )  # fmt: skip
 
 
@@ -161,36 +136,14 @@ def _categories(settings: Sequence[str]) -> list[str]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     prog = "python -m vla_gr.training.object_category"
-    parser = argparse.ArgumentParser(prog=prog, description=__doc__)
-    parser.add_argument("init", help="the dual-system agent checkpoint (kept but the segmenter)")
-    parser.add_argument("out", help="the checkpoint folder to write (replaced)")
-    parser.add_argument("--store", required=True, help="expert store with the training frames")
-    parser.add_argument("--first", type=int, default=0, help="first stored episode to read")
-    parser.add_argument("--episodes", type=int, default=None, help="stored episodes to read")
-    parser.add_argument("--stride", type=int, default=8, help="every stride-th frame")
-    parser.add_argument("--eval-store", default=None, help="a store of unseen houses to report on")
-    parser.add_argument("--steps", type=int, default=3000)
-    parser.add_argument("--batch-size", type=int, default=64)
-    parser.add_argument("--lr", type=float, default=2e-3)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument(
-        "--reject-threshold", type=float, default=0.3, help="navigator.object_reject_threshold"
-    )
-    parser.add_argument("--set", nargs="*", default=[], help="object_category.* settings")
+    parser = frame_part_parser(prog, __doc__, "segmenter")
+    add_frame_training_arguments(
+        parser, "object_category", steps=3000, batch_size=64, reject_threshold=0.3,
+        threshold_help="navigator.object_reject_threshold",
+    )  # fmt: skip
 
     def work(args: argparse.Namespace) -> None:
-        categories = _categories(args.set)
-        frames = category_frames(args.store, categories, args.first, args.episodes, args.stride)
-        eval_frames = (
-            category_frames(args.eval_store, categories, stride=args.stride)
-            if args.eval_store
-            else None
-        )
-        train_object_category(
-            args.init, args.out, frames, categories, steps=args.steps,
-            batch_size=args.batch_size, lr=args.lr, seed=args.seed, settings=args.set,
-            reject_threshold=args.reject_threshold, eval_frames=eval_frames,
-        )  # fmt: skip
+        train_from_args(args, _categories(args.set), category_frames, train_object_category)
 
     return run_command(parser, argv, work, limit_threads=True)
 

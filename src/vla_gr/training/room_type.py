@@ -29,12 +29,13 @@ import torch.nn.functional as F
 
 from vla_gr.errors import UserError
 from vla_gr.training.agent_stage import (
-    build_agent_from,
-    finish_part,
-    fit_part,
+    add_frame_training_arguments,
+    frame_part_parser,
     graft_part,
     labelled_frames,
     part_setting,
+    train_frame_part,
+    train_from_args,
 )
 from vla_gr.training.command import run_command
 
@@ -131,35 +132,15 @@ def train_room_type(
 ) -> dict:
     """Train the classifier on ``frames`` (labelled in ``room_types``' order) and write the
     agent to ``out``; returns the summary."""
-    torch.manual_seed(seed)
-    policy, loaded, config = build_agent_from(
-        init, "room_type", settings, keep_part=False, forced=["room_type.enabled=true"]
-    )
-    if list(policy.config.room_type.room_types) != list(room_types):
-        raise UserError(
-            f"frames are labelled in {list(room_types)} but the classifier predicts "
-            f"{list(policy.config.room_type.room_types)} (room_type.room_types)"
-        )
-    config.model.navigator.room_reject_threshold = float(reject_threshold)
-    classifier = policy.room_type
-    policy.requires_grad_(False)
-    summary, _ = fit_part(
-        classifier,
-        frames,
-        lambda rgb, depth, label: F.cross_entropy(classifier(rgb, depth), label),
-        lambda val: room_accuracy(classifier, val),
-        "accuracy",
-        "room type",
-        steps,
-        batch_size,
-        lr,
-        seed,
-        val_fraction,
-        eval_every,
-    )
-    return finish_part(
-        policy, loaded, config, out, "room_type", summary,
-        lambda frames: room_accuracy(classifier, frames), eval_frames,
+    return train_frame_part(
+        init, out, frames, room_types, settings, reject_threshold, eval_frames,
+        part="room_type", labels_key="room_types", role="classifier",
+        threshold_key="room_reject_threshold",
+        batch_loss=lambda classifier, rgb, depth, label: F.cross_entropy(
+            classifier(rgb, depth), label
+        ),
+        evaluate=room_accuracy, score="accuracy", name="room type", seed=seed, steps=steps,
+        batch_size=batch_size, lr=lr, val_fraction=val_fraction, eval_every=eval_every,
     )  # fmt: skip
 
 
@@ -172,24 +153,14 @@ def _room_types(settings: Sequence[str]) -> list[str]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     prog = "python -m vla_gr.training.room_type"
-    parser = argparse.ArgumentParser(prog=prog, description=__doc__)
-    parser.add_argument("init", help="the dual-system agent checkpoint (kept but the classifier)")
-    parser.add_argument("out", help="the checkpoint folder to write (replaced)")
-    parser.add_argument("--store", help="expert store with the training frames")
+    parser = frame_part_parser(prog, __doc__, "classifier", store_required=False)
     parser.add_argument(
         "--classifier-from", default=None, help="take this checkpoint's classifier, no training"
     )
-    parser.add_argument("--first", type=int, default=0, help="first stored episode to read")
-    parser.add_argument("--episodes", type=int, default=None, help="stored episodes to read")
-    parser.add_argument("--stride", type=int, default=8, help="every stride-th frame")
-    parser.add_argument("--eval-store", default=None, help="a store of unseen houses to report on")
-    parser.add_argument("--steps", type=int, default=2000)
-    parser.add_argument("--batch-size", type=int, default=256)
-    parser.add_argument("--lr", type=float, default=2e-3)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--reject-threshold", type=float, default=0.2,
-                        help="navigator.room_reject_threshold written with the agent")  # fmt: skip
-    parser.add_argument("--set", nargs="*", default=[], help="room_type.* settings")
+    add_frame_training_arguments(
+        parser, "room_type", steps=2000, batch_size=256, reject_threshold=0.2,
+        threshold_help="navigator.room_reject_threshold written with the agent",
+    )  # fmt: skip
 
     def work(args: argparse.Namespace) -> None:
         if args.classifier_from:
@@ -198,18 +169,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             return
         if not args.store:
             raise UserError("--store is required unless --classifier-from names a checkpoint")
-        room_types = _room_types(args.set)
-        frames = room_frames(args.store, room_types, args.first, args.episodes, args.stride)
-        eval_frames = (
-            room_frames(args.eval_store, room_types, stride=args.stride)
-            if args.eval_store
-            else None
-        )
-        train_room_type(
-            args.init, args.out, frames, room_types, steps=args.steps, batch_size=args.batch_size,
-            lr=args.lr, seed=args.seed, settings=args.set,
-            reject_threshold=args.reject_threshold, eval_frames=eval_frames,
-        )  # fmt: skip
+        train_from_args(args, _room_types(args.set), room_frames, train_room_type)
 
     return run_command(parser, argv, work, limit_threads=True)
 

@@ -58,8 +58,8 @@ from vla_gr.core.diffusion_policy.noise_targets import (
     q_sample,
 )
 from vla_gr.core.diffusion_policy.regression_head import (
+    ActionHead,
     L1RegressionHead,
-    check_actions,
     ctx_mask,
 )
 from vla_gr.core.trajectory_attention.attention import as_context_tokens
@@ -74,7 +74,7 @@ logger = logging.getLogger(__name__)
 FLOW_TIME_SCALE = 1000.0
 
 
-class DiffusionPolicy(nn.Module):
+class DiffusionPolicy(ActionHead):
     """Diffusion / flow-matching / L1 action head with the seed's interface.
 
     Built from a :class:`~vla_gr.core.diffusion_policy.config.HeadConfig` (every setting
@@ -192,30 +192,17 @@ class DiffusionPolicy(nn.Module):
 
     # ------------------------------------------------------------------ training
 
-    def forward(
+    def _loss(
         self,
         actions: torch.Tensor,
-        context: torch.Tensor,
-        context_padding_mask: torch.Tensor | None = None,
-        generator: torch.Generator | None = None,
+        ctx: torch.Tensor,
+        mask: torch.Tensor | None,
+        generator: torch.Generator | None,
     ) -> dict[str, torch.Tensor]:
-        """Training loss.
-
-        Args:
-            actions: ``(B, H, A)`` normalised target actions.
-            context: ``(B, C)`` or ``(B, T, C)``.
-            context_padding_mask: optional bool ``(B, T)``, ``True`` = padded.
-            generator: optional RNG for noise and times (reproducible losses).
-
-        Returns:
-            ``{"loss": scalar, "mse": scalar, "x0_mse": scalar}`` (logged scalars detached;
-            ``{"loss", "l1"}`` for the L1 objective).
-        """
+        """Diffusion / flow-matching loss ``{"loss": scalar, "mse": scalar, "x0_mse": scalar}``
+        (``{"loss", "l1"}`` for the L1 objective); ``generator`` draws noise and times."""
         if self.head is not None:
-            return self.head(actions, context, context_padding_mask)
-        check_actions(actions, self.horizon, self.action_dim)
-        ctx = as_context_tokens(context, self.context_dim)  # (B, T, C)
-        mask = ctx_mask(context_padding_mask)
+            return self.head(actions, ctx, mask)
         B = actions.shape[0]
         noise = torch.randn(
             actions.shape, generator=generator, device=actions.device, dtype=actions.dtype
@@ -250,53 +237,19 @@ class DiffusionPolicy(nn.Module):
 
     # ------------------------------------------------------------------ sampling
 
-    def get_action(
-        self,
-        context: torch.Tensor,
-        num_inference_steps: int | None = None,
-        sampler: str | None = None,
-        generator: torch.Generator | None = None,
-        context_padding_mask: torch.Tensor | None = None,
-        eta: float = 0.0,
-        noise: torch.Tensor | None = None,
-    ) -> torch.Tensor:
-        """Sample an action chunk.
-
-        Args:
-            context: ``(B, C)`` or ``(B, T, C)``.
-            num_inference_steps: denoising / integration steps (ignored by ``l1``);
-                default ``config.num_inference_steps``.
-            sampler: ``"ddim"`` | ``"ddpm"`` (diffusion), ``"euler"`` | ``"midpoint"``
-                (flow matching); default ``default_sampler``.
-            generator: RNG for the initial noise (and DDPM / DDIM ``eta > 0`` noise).
-            context_padding_mask: optional bool ``(B, T)``, ``True`` = padded.
-            eta: DDIM stochasticity (0 = deterministic).
-            noise: optional initial noise ``(B, H, A)`` (overrides ``generator`` for it).
-
-        Returns:
-            ``(B, H, A)`` actions (clipped to ``[-1, 1]`` when ``clip_sample``).
-        """
-        if self.head is not None:
-            return self.head.get_action(context, context_padding_mask=context_padding_mask)
-        # inference_mode skips autograd bookkeeping (~12% faster than no_grad at batch 1);
-        # the clone returns an ordinary tensor that later autograd code may use.
-        with torch.inference_mode():
-            x = self._get_action(
-                context, num_inference_steps, sampler, generator, context_padding_mask, eta, noise
-            )
-        return x.clone()
-
     def _get_action(
         self,
         context: torch.Tensor,
+        context_padding_mask: torch.Tensor | None,
         num_inference_steps: int | None,
         sampler: str | None,
         generator: torch.Generator | None,
-        context_padding_mask: torch.Tensor | None,
         eta: float,
         noise: torch.Tensor | None,
     ) -> torch.Tensor:
         """Body of :meth:`get_action` (runs under ``torch.inference_mode``)."""
+        if self.head is not None:
+            return self.head._get_action(context, context_padding_mask)
         sampler = self.default_sampler if sampler is None else sampler
         if num_inference_steps is None:
             num_inference_steps = self.config.num_inference_steps

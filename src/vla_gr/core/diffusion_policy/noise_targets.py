@@ -49,6 +49,14 @@ def gather_alpha_bar(
     return ab.view(-1, *([1] * (ndim - 1)))  # (B, 1, 1)
 
 
+def _alpha_bar_like(
+    alphas_cumprod: torch.Tensor, timesteps: torch.Tensor, sample: torch.Tensor
+) -> torch.Tensor:
+    """:func:`gather_alpha_bar` shaped for ``sample`` ``(B, H, A)`` and in its dtype:
+    ``(B, 1, 1)``."""
+    return gather_alpha_bar(alphas_cumprod, timesteps, sample.dim()).to(sample.dtype)
+
+
 def q_sample(
     x0: torch.Tensor, noise: torch.Tensor, timesteps: torch.Tensor, alphas_cumprod: torch.Tensor
 ) -> torch.Tensor:
@@ -63,7 +71,7 @@ def q_sample(
     Returns:
         ``(B, H, A)``.
     """
-    ab = gather_alpha_bar(alphas_cumprod, timesteps, x0.dim()).to(x0.dtype)  # (B, 1, 1)
+    ab = _alpha_bar_like(alphas_cumprod, timesteps, x0)  # (B, 1, 1)
     return ab.sqrt() * x0 + (1.0 - ab).sqrt() * noise
 
 
@@ -91,7 +99,7 @@ def diffusion_target(
         return noise
     if prediction_type == "sample":
         return x0
-    ab = gather_alpha_bar(alphas_cumprod, timesteps, x0.dim()).to(x0.dtype)  # (B, 1, 1)
+    ab = _alpha_bar_like(alphas_cumprod, timesteps, x0)  # (B, 1, 1)
     return ab.sqrt() * noise - (1.0 - ab).sqrt() * x0  # v_prediction
 
 
@@ -102,20 +110,13 @@ def predicted_x0(
     alphas_cumprod: torch.Tensor,
     prediction_type: str,
 ) -> torch.Tensor:
-    """Clean-sample estimate implied by a model output (inverse of the targets).
+    """Clean-sample estimate ``(B, H, A)`` implied by a model output (inverse of the targets).
 
-    Args:
-        model_output: ``(B, H, A)`` prediction of the ``prediction_type`` target.
-        x_t: ``(B, H, A)`` noisy sample.
-        timesteps: ``(B,)`` integer timesteps.
-        alphas_cumprod: ``(N,)`` schedule.
-        prediction_type: ``"epsilon"``, ``"v_prediction"`` or ``"sample"``.
-
-    Returns:
-        ``(B, H, A)``.
+    ``model_output`` ``(B, H, A)`` predicts the ``prediction_type`` target of the noisy
+    sample ``x_t`` ``(B, H, A)``; the other arguments are those of :func:`diffusion_target`.
     """
     check_choice("prediction_type", prediction_type, PREDICTION_TYPES)
-    ab = gather_alpha_bar(alphas_cumprod, timesteps, x_t.dim()).to(x_t.dtype)  # (B, 1, 1)
+    ab = _alpha_bar_like(alphas_cumprod, timesteps, x_t)  # (B, 1, 1)
     if prediction_type == "epsilon":
         return (x_t - (1.0 - ab).sqrt() * model_output) / ab.sqrt()
     if prediction_type == "sample":
