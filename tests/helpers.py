@@ -10,7 +10,7 @@ import torch
 from vla_gr.configs.model_schema import ModelConfig
 from vla_gr.core.diffusion_policy import HeadConfig
 from vla_gr.core.encoders import EncodersConfig
-from vla_gr.policy import VLAGRPolicy, make_fake_batch
+from vla_gr.policy import NavigationPolicy, make_fake_batch, make_policy
 
 
 def tiny_model_config(**overrides) -> ModelConfig:
@@ -42,9 +42,10 @@ def tiny_model_config(**overrides) -> ModelConfig:
     return ModelConfig(**layout, encoders=EncodersConfig(**encoders), head=HeadConfig(**head))
 
 
-def tiny_policy(seed: int = 0, **overrides) -> VLAGRPolicy:
+def tiny_policy(seed: int = 0, **overrides) -> NavigationPolicy:
+    """The tiny model config's agent (the end-to-end policy unless ``agent=`` says)."""
     torch.manual_seed(seed)
-    return VLAGRPolicy(tiny_model_config(**overrides))
+    return make_policy(tiny_model_config(**overrides))
 
 
 def split_batch(batch: dict, parts: int) -> list[dict]:

@@ -18,8 +18,10 @@ from vla_gr.cli import main as cli_main
 from vla_gr.configs import load_config
 from vla_gr.evaluate import EvalInputError, evaluate, expand_aliases, run_from_cli
 from vla_gr.evaluation import AGENTS
-from vla_gr.evaluation.agents import register_agent
+from vla_gr.evaluation.agents import EvalAgent, UntrainedDualSystemAgent, register_agent
 from vla_gr.evaluation.summary import BREAKDOWNS, without_timing
+from vla_gr.policy.dual_system import GroundedDualSystem
+from vla_gr.policy.perception import Percept
 
 FAST = ["eval.progress=false", "eval.gif_successes=1", "eval.gif_per_cause=0", "seed=3"]
 
@@ -37,20 +39,14 @@ def no_latency(rows: list[dict]) -> list[dict]:
     return [{k: v for k, v in r.items() if k != "latency_ms"} for r in rows]
 
 
-class Constant:
+class Constant(EvalAgent):
     """A scripted agent: the same action every step."""
 
     def __init__(self, action) -> None:
         self.action = np.asarray(action, dtype=np.float32)
 
-    def reset(self, seed=None) -> None:
-        pass
-
     def act(self, obs) -> np.ndarray:
         return self.action
-
-    def parameters(self) -> dict:
-        return {}
 
 
 def test_expert_reaches_every_goal_random_does_worse_and_metrics_match_the_rows(tmp_path, caplog):
@@ -268,14 +264,14 @@ def checkpoint(tmp_path_factory) -> Path:
 
 
 def test_a_trained_checkpoint_reports_latency_and_parameters(tmp_path, checkpoint):
-    from vla_gr.policy import VLAGRPolicy
+    from vla_gr.policy import load_policy
 
     # no agent= given: a checkpoint= means the checkpoint agent
     metrics = evaluate(
         cfg_for(tmp_path, f"checkpoint={checkpoint}", "num_episodes=2", "env.max_episode_steps=8")
     )
     assert metrics["agent"] == "checkpoint"
-    policy = VLAGRPolicy.from_pretrained(checkpoint)
+    policy = load_policy(checkpoint)
     assert metrics["parameters"]["total"] == sum(p.numel() for p in policy.parameters())
     assert metrics["parameters"]["head"] == sum(p.numel() for p in policy.head.parameters())
     lat = metrics["latency_ms"]["decision"]
@@ -411,28 +407,25 @@ def test_true_mask_agent_reports_s1_and_s2_latency_on_its_schedule(tmp_path):
     assert lat["s2"]["calls"] == -(-steps // 3)  # a tick every 3 control steps, from step 0
 
 
-class _BlindDualSystem:
-    """The dual system with a goal likelihood of zero everywhere (an instruction that names
-    nothing it can ground): it only explores, and its goal confidence stays 0."""
+class _BlindPerception:
+    """Perceives a goal likelihood of zero everywhere (an instruction that names nothing it
+    can ground)."""
+
+    read_as = None
+
+    def reset(self) -> None:
+        pass
+
+    def perceive(self, obs) -> Percept:
+        return Percept(np.zeros(obs["depth"].shape[:2], np.float32))  # (H, W)
+
+
+class _BlindDualSystem(UntrainedDualSystemAgent):
+    """The dual system on a blind perception: it only explores, and its goal confidence
+    stays 0."""
 
     def __init__(self, cfg, env) -> None:
-        from vla_gr.policy.dual_system import GroundedDualSystem
-
-        self.system = GroundedDualSystem.from_model_config(
-            lambda obs: np.zeros(obs["depth"].shape[:2], np.float32), cfg.model
-        )
-
-    def reset(self, seed=None):
-        self.system.reset()
-
-    def act(self, obs):
-        return self.system.step(obs)
-
-    def episode_summary(self):
-        return self.system.episode_summary()
-
-    def parameters(self):
-        return {}
+        super().__init__(GroundedDualSystem.from_model_config(_BlindPerception(), cfg.model))
 
 
 register_agent("test_blind_dual_system")(_BlindDualSystem)

@@ -35,7 +35,7 @@ from torch.nn.parallel import DistributedDataParallel
 
 from vla_gr import checkpoint as ckpt
 from vla_gr.configs.schema import VLAGRConfig
-from vla_gr.policy import VLAGRPolicy, apply_peft
+from vla_gr.policy import NavigationPolicy, apply_peft, make_policy
 from vla_gr.training.augment import augment_batch
 from vla_gr.training.closed_loop import best_score, closed_loop_metrics
 from vla_gr.training.data import build_datasets, build_loaders, prepare_store
@@ -196,9 +196,9 @@ def maybe_checkpoint(run: Run, state: TrainState, is_best: bool) -> None:
 # --------------------------------------------------------------------------- set-up
 
 
-def build_policy(cfg: VLAGRConfig, normalizers: Mapping | None = None) -> VLAGRPolicy:
+def build_policy(cfg: VLAGRConfig, normalizers: Mapping | None = None) -> NavigationPolicy:
     """The policy of ``cfg.model`` with data normalisers, init weights and PEFT applied."""
-    model = VLAGRPolicy(cfg.model)
+    model = make_policy(cfg.model)
     if normalizers is not None:
         model.set_normalization(normalizers)
     if cfg.training.init_from:

@@ -23,13 +23,14 @@ from vla_gr.core.dual_system import LearnedFollower, PurePursuit
 from vla_gr.evaluate import compare, expand_aliases
 from vla_gr.evaluation.agents import (
     AgentError,
-    TrueCategoryAgent,
-    TrueMaskAgent,
     check_agent,
     make_agent,
     resolve_agent,
+    true_category_agent,
+    true_mask_agent,
 )
-from vla_gr.policy import VLAGRPolicy
+from vla_gr.policy import VLAGRPolicy, make_policy
+from vla_gr.policy.perception import TrueCategoryGate, TrueMaskPerception
 
 FAST = ["eval.progress=false", "eval.gif_successes=0", "eval.gif_per_cause=0"]
 TINY = [
@@ -43,7 +44,7 @@ def write_checkpoint(folder: Path, *overrides: str) -> str:
     """A tiny untrained agent (config_debug's env: 32 px) saved as a checkpoint folder."""
     resolved, cfg = load_config("config_debug", [*TINY, *overrides])
     torch.manual_seed(0)
-    tensors = {k: v.contiguous() for k, v in VLAGRPolicy(cfg.model).state_dict().items()}
+    tensors = {k: v.contiguous() for k, v in make_policy(cfg.model).state_dict().items()}
     state = {"step": 0, "vla_gr_version": __version__}
     path = save_checkpoint(folder, 0, tensors, state, OmegaConf.to_yaml(resolved), links=())
     return str(path)
@@ -108,18 +109,22 @@ def test_true_mask_on_a_checkpoint_uses_its_dual_system(dual, tmp_path):
         ceiling=VariantConfig(agent="true_mask", model_overrides=["navigator.confirm_ticks=5"]),
         ceiling_pp=VariantConfig(agent="true_mask", model_overrides=["s1.kind=pure_pursuit"]),
     )
-    system = make_agent("ceiling", cfg, None).system
+    ceiling = make_agent("ceiling", cfg, None).policy
+    system = ceiling.dual_system
+    assert isinstance(ceiling.perception, TrueMaskPerception)  # the wiring is the checkpoint's
     assert isinstance(system.follower, LearnedFollower) and system.plan_every == 4
     assert system.navigator.config.confirm_ticks == 5
     loaded = VLAGRPolicy.from_pretrained(dual).s1.state_dict()
     for key, value in system.follower.policy.state_dict().items():
         assert torch.equal(value, loaded[key])  # the checkpoint's S1
-    assert isinstance(make_agent("ceiling_pp", cfg, None).system.follower, PurePursuit)
+    pursuit = make_agent("ceiling_pp", cfg, None).policy.dual_system.follower
+    assert isinstance(pursuit, PurePursuit)
     # without a checkpoint: cfg.model's dual system, as before
-    plain = TrueMaskAgent(eval_cfg(), None).system
+    plain = true_mask_agent(eval_cfg(), None).system
     assert isinstance(plain.follower, PurePursuit) and plain.plan_every == 10
+    assert isinstance(plain.perception, TrueMaskPerception)
     e2e = write_checkpoint(tmp_path, "model.agent=end_to_end")
-    with pytest.raises(AgentError, match="model.agent=end_to_end; agent=true_mask needs"):
+    with pytest.raises(AgentError, match="model.agent=end_to_end.*agent=true_mask needs"):
         check_agent("true_mask", eval_cfg(f"checkpoint={e2e}"))
 
 
@@ -129,19 +134,21 @@ def test_true_category_runs_the_checkpoints_checks_and_true_mask_needs_none(tmp_
         "model.navigator.room_reject_threshold=0.2", "model.object_category.enabled=true",
     )  # fmt: skip
     world = Namespace(unwrapped=Namespace())
-    agent = TrueCategoryAgent(eval_cfg(f"checkpoint={room}"), world)
-    assert agent.policy.room_type is not None
-    assert agent.system.room_match == agent.policy.room_match
-    assert agent.system.object_evidence == agent.policy.object_evidence
+    policy = true_category_agent(eval_cfg(f"checkpoint={room}"), world).policy
+    perception = policy.perception
+    assert policy.room_type is not None and perception.room_type is policy.room_type
+    assert perception.object_category is policy.object_category
+    assert isinstance(perception.gate, TrueCategoryGate)
     # the ceiling knows the goal's pixels: nothing to check
-    assert make_agent("true_mask", eval_cfg(f"checkpoint={room}"), world).system.room_match is None
+    ceiling = make_agent("true_mask", eval_cfg(f"checkpoint={room}"), world).policy
+    assert isinstance(ceiling.perception, TrueMaskPerception)
 
 
 def test_true_category_keeps_the_goal_heads_pixels_on_the_goal_category_only(dual, tmp_path):
     chair, other_chair, table = (Namespace(instance_id=i, category=c) for i, c in
                                  ((3, "chair"), (5, "chair"), (7, "table")))  # fmt: skip
     world = Namespace(house=Namespace(objects=[chair, other_chair, table]), goal=chair)
-    agent = TrueCategoryAgent(eval_cfg(f"checkpoint={dual}"), Namespace(unwrapped=world))
+    agent = true_category_agent(eval_cfg(f"checkpoint={dual}"), Namespace(unwrapped=world))
     rng = np.random.default_rng(0)
     semantic = rng.choice([0, 3, 5, 7], size=(32, 32))  # (H, W) instance ids
     obs = {
@@ -151,18 +158,19 @@ def test_true_category_keeps_the_goal_heads_pixels_on_the_goal_category_only(dua
         "instruction": "find the chair",
         "semantic": semantic,
     }
-    raw, raw_visible = agent.policy.goal_likelihood(obs)  # (H, W), probability
-    gated, visible = agent._gated(obs)
+    raw = agent.policy.learned_perception().perceive(obs)
+    gated = agent.policy.perception.perceive(obs)
     chairs = np.isin(semantic, [3, 5])  # the goal and its same-category distractor
-    assert visible == raw_visible and raw[~chairs].max() > 0
-    assert np.array_equal(gated[chairs], raw[chairs]) and not gated[~chairs].any()
+    assert gated.visible == raw.visible and raw.likelihood[~chairs].max() > 0
+    assert np.array_equal(gated.likelihood[chairs], raw.likelihood[chairs])
+    assert not gated.likelihood[~chairs].any()
     assert agent.parameters()["total"] == sum(p.numel() for p in agent.policy.parameters())
-    with pytest.raises(AgentError, match="agent=true_category needs the env's semantic"):
-        agent._gated({k: v for k, v in obs.items() if k != "semantic"})
+    with pytest.raises(ValueError, match="agent=true_category needs the env's semantic"):
+        agent.policy.perception.perceive({k: v for k, v in obs.items() if k != "semantic"})
     with pytest.raises(AgentError, match="give checkpoint="):
-        TrueCategoryAgent(eval_cfg(), None)
+        true_category_agent(eval_cfg(), None)
     e2e = write_checkpoint(tmp_path, "model.agent=end_to_end")
-    with pytest.raises(AgentError, match="model.agent=end_to_end; agent=true_category needs"):
+    with pytest.raises(AgentError, match="model.agent=end_to_end.*agent=true_category needs"):
         check_agent("true_category", eval_cfg(f"checkpoint={e2e}"))
 
 
@@ -171,10 +179,11 @@ def test_true_category_reads_the_instruction_through_the_checkpoints_lexicon(dua
     sofa = Namespace(instance_id=3, category="sofa")
     world = Namespace(house=Namespace(objects=[sofa]), goal=sofa)
     lexicon = "eval.model_overrides=['instruction_lexicon.enabled=true']"
-    agent = TrueCategoryAgent(eval_cfg(f"checkpoint={dual}", lexicon), Namespace(unwrapped=world))
+    agent = true_category_agent(eval_cfg(f"checkpoint={dual}", lexicon), Namespace(unwrapped=world))
     seen = []
-    perceive = agent.system.goal_likelihood
-    agent.system.goal_likelihood = lambda obs: seen.append(obs["instruction"]) or perceive(obs)
+    head = agent.policy.goal_head
+    likelihood = head.likelihood
+    head.likelihood = lambda rgb, depth, text: seen.extend(text) or likelihood(rgb, depth, text)
     obs = {
         "rgb": np.zeros((32, 32, 3), np.uint8),
         "depth": np.full((32, 32, 1), 2.0, np.float32),

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import json
 from pathlib import Path
@@ -19,10 +20,11 @@ from vla_gr.core.dual_system import LearnedFollower
 from vla_gr.core.dual_system.s1_inputs import PlanMemory
 from vla_gr.core.gr_field import NavPlan
 from vla_gr.core.gr_field.navigator import MODES
-from vla_gr.core.grounding import ObjectEvidence, goal_head_loss
+from vla_gr.core.grounding import goal_head_loss
 from vla_gr.data.dataset import EpisodeWindowDataset
 from vla_gr.evaluation.agents import PolicyAgent
-from vla_gr.policy import VLAGRPolicy, make_fake_batch
+from vla_gr.policy import EndToEndPolicy, VLAGRPolicy, make_fake_batch, make_policy
+from vla_gr.policy.factory import POLICY_CLASSES
 from vla_gr.train import train
 from vla_gr.training.data import make_loader
 from vla_gr.training.logger import read_metrics
@@ -39,7 +41,7 @@ def _model(*overrides: str) -> VLAGRPolicy:
 
 def test_builds_only_the_goal_head_and_its_loss_is_the_last_frames():
     model = _model("model.grounding.pos_weight=2.0", "model.grounding.visible_weight=0.25")
-    assert model.has_goal_head
+    assert type(model) is VLAGRPolicy
     for end_to_end in ("vision", "text", "pose", "fusion", "head"):
         assert not hasattr(model, end_to_end), end_to_end
     batch = make_fake_batch(model.config, batch_size=3, seed=1)
@@ -108,8 +110,8 @@ def test_s2_runs_every_plan_every_steps_and_s1_every_step():
     system = model.dual_system
     assert system.plan_every == 3
     ticks = []
-    perceive = system.goal_likelihood
-    system.goal_likelihood = lambda obs: ticks.append(len(ticks)) or perceive(obs)
+    perceive = system.perception.perceive
+    system.perception.perceive = lambda obs: ticks.append(len(ticks)) or perceive(obs)
     model.reset()
     s2_steps = []
     for t in range(8):
@@ -173,8 +175,8 @@ def test_learned_s1_reads_the_latest_plan_and_s2_runs_every_plan_every_steps():
     assert isinstance(follower, LearnedFollower) and follower.policy is model.s1
     assert system.plan_every == 3
     likelihood_steps = []
-    perceive = system.goal_likelihood
-    system.goal_likelihood = lambda obs: likelihood_steps.append(system.steps) or perceive(obs)
+    perceive = system.perception.perceive
+    system.perception.perceive = lambda obs: likelihood_steps.append(system.steps) or perceive(obs)
     plans = iter(
         NavPlan(np.array([[1.0 + k, 0.5 * k]]), "explore", 0.1 * k, False) for k in range(4)
     )
@@ -218,13 +220,14 @@ def test_the_dual_system_runs_at_batch_one():
         model.select_action(batch)
 
 
-def test_end_to_end_is_the_default_and_has_no_goal_head():
+def test_the_factory_builds_one_class_per_agent():
     _, cfg = load_config("config_debug")
-    model = VLAGRPolicy(cfg.model)
-    assert cfg.model.agent == "end_to_end" and not model.has_goal_head
-    assert not hasattr(model, "goal_head")
-    with pytest.raises(RuntimeError, match="no goal head"):
-        model.goal_outputs(make_fake_batch(cfg.model))
+    model = make_policy(cfg.model)
+    assert cfg.model.agent == "end_to_end" and type(model) is EndToEndPolicy
+    assert not hasattr(model, "goal_head") and not hasattr(model, "goal_outputs")
+    dual = make_policy(_model().config)
+    assert type(dual) is VLAGRPolicy and not hasattr(dual, "head")
+    assert {"dual_system": VLAGRPolicy, "end_to_end": EndToEndPolicy} == POLICY_CLASSES
 
 
 @pytest.mark.parametrize(
@@ -328,29 +331,41 @@ def test_a_category_output_is_warm_started_from_a_goal_head_without_one(tmp_path
     assert {"train/category_bce", "train/category_dice"} <= set(rows[0])
 
 
-def test_the_room_check_is_asked_once_per_s2_tick_and_reaches_the_navigator():
+def _count_calls(module) -> list:
+    calls: list = []
+    module.register_forward_hook(lambda *args: calls.append(1))
+    return calls
+
+
+def test_the_room_check_is_one_field_of_the_tick_percept_and_reaches_the_navigator():
     model = _model(
         "model.dual_system.control_frequency_hz=10",
         "model.dual_system.planning_frequency_hz=3.3",
         "model.room_type.enabled=true",
         "model.navigator.room_reject_threshold=0.5",
     )
-    system = model.dual_system
-    assert system.room_match == model.room_match  # the policy's classifier is S2's check
-    probability = model.room_match({**_obs(), "instruction": "find the chair in the kitchen"})
-    assert 0.0 < probability < 1.0
-    assert model.room_match(_obs()) == 1.0  # "find the chair" names no room
-    asked = []
-    system.room_match = lambda obs: asked.append(obs["instruction"]) or 0.25
+    system, perception = model.dual_system, model.perception
+    assert perception.room_type is model.room_type  # the policy's classifier is S2's check
+    calls = _count_calls(model.room_type)
+    kitchen = {**_obs(), "instruction": "find the chair in the kitchen"}
+    assert 0.0 < perception.perceive(kitchen).room_match < 1.0 and len(calls) == 1
+    perception.reset()
+    assert perception.perceive(_obs()).room_match == 1.0  # "find the chair" names no room
+    assert len(calls) == 1  # no room named: the classifier is not asked
+    model.reset()
+    for _ in range(7):
+        model.select_action(kitchen)
+    assert len(calls) == 4  # once per S2 tick: steps 0, 3, 6
+    perceive = perception.perceive
+    perception.perceive = lambda obs: dataclasses.replace(perceive(obs), room_match=0.25)
     model.reset()
     for _ in range(7):
         model.select_action(_obs())
-    assert len(asked) == 3  # steps 0, 3, 6
     assert list(system.navigator.checks.room_matches) == [0.25, 0.25, 0.25]
     # without the classifier S2 passes 1 on every tick
     plain = _model()
-    assert plain.room_type is None and plain.dual_system.room_match is None
-    plain.select_action(_obs())
+    assert plain.room_type is None and plain.perception.room_type is None
+    plain.select_action(kitchen)
     assert list(plain.dual_system.navigator.checks.room_matches) == [1.0]
 
 
@@ -361,29 +376,35 @@ def test_the_object_checks_read_the_ticks_likelihood_and_reach_the_navigator():
         "model.object_category.enabled=true",
         "model.navigator.object_reject_threshold=0.5",
     )
-    system = model.dual_system
-    assert system.object_evidence == model.object_evidence  # the policy's segmenter
+    system, perception = model.dual_system, model.perception
+    assert perception.object_category is model.object_category  # the policy's segmenter
     goal = np.zeros((32, 32), np.float32)
     goal[8:16, 8:16] = 1.0
-    assert 0.0 < model.object_evidence(_obs(), goal).match < 1.0
-    assert model.object_evidence(_obs(), np.zeros((32, 32), np.float32)).match is None
-    asked = []
+    likelihood = {"pixels": goal}
+    model.goal_head.likelihood = lambda rgb, depth, text: (
+        torch.from_numpy(likelihood["pixels"])[None],  # (1, H, W)
+        torch.ones(1),  # (1,)
+    )
+    calls = _count_calls(model.object_category)
+    p = perception.perceive(_obs())
+    assert 0.0 < p.category_match < 1.0 and p.anchor is None and len(calls) == 1
+    np.testing.assert_array_equal(p.likelihood, goal)
+    likelihood["pixels"] = np.zeros((32, 32), np.float32)
+    assert perception.perceive(_obs()).category_match is None  # too few goal pixels
     anchor = np.zeros((32, 32), np.float32)
     anchor[:, 12:20] = 1.0  # the anchor fills the middle columns of every frame
-
-    def evidence(obs, likelihood):
-        asked.append(likelihood)
-        return ObjectEvidence(0.25, anchor)
-
-    system.object_evidence = evidence
+    perceive = perception.perceive
+    perception.perceive = lambda obs: dataclasses.replace(
+        perceive(obs), category_match=0.25, anchor=anchor
+    )
     model.reset()
     for _ in range(7):
         model.select_action(_obs())
-    assert len(asked) == 3 and asked[-1] is system.last_likelihood  # steps 0, 3, 6
+    assert system.last_percept.anchor is anchor  # steps 0, 3, 6
     assert list(system.navigator.checks.object_matches) == [0.25, 0.25, 0.25]
     assert system.navigator.checks.has_anchor and system.navigator.checks.anchor_votes.max() == 3
     plain = _model()
-    assert plain.object_category is None and plain.dual_system.object_evidence is None
+    assert plain.object_category is None and plain.perception.object_category is None
     plain.select_action(_obs())
     assert list(plain.dual_system.navigator.checks.object_matches) == []
     assert not plain.dual_system.navigator.checks.has_anchor
@@ -394,15 +415,17 @@ def test_the_instruction_lexicon_rewrites_what_s2_reads_and_the_summary_says_it(
     model = _model("model.room_type.enabled=true", "model.instruction_lexicon.enabled=true")
     assert model.instruction_lexicon.config.categories == model.config.object_category.categories
     seen = []
-    perceive = model.dual_system.goal_likelihood
-    model.dual_system.goal_likelihood = lambda obs: seen.append(obs["instruction"]) or perceive(obs)
+    likelihood = model.goal_head.likelihood
+    model.goal_head.likelihood = lambda rgb, depth, text: (
+        seen.extend(text) or likelihood(rgb, depth, text)
+    )
     agent = PolicyAgent(model)
     said = "go into the kitchen and find the couch close to the television"
     model.reset()
     model.select_action({**_obs(), "instruction": said})
     assert seen == ["find the sofa in the kitchen next to the tv"]
     assert agent.episode_summary()["read_as"] == seen[0]
-    assert model.read_instruction(seen[0]).room == 0  # the room check now reads "kitchen"
+    assert model.perception.read(said).room == 0  # the room check now reads "kitchen"
     model.reset()
     assert "read_as" not in agent.episode_summary()
     model.select_action(_obs())  # a template instruction reaches S2 as it was said
@@ -433,19 +456,20 @@ def test_relation_candidates_add_the_instructed_categorys_pixels_once_per_frame(
         "find the plant",  # no relation: the goal head alone
         "find the chair near the sofa",  # candidates are chair pixels: there are none
     )
-    head = {t: model.goal_likelihood(said(t))[0] for t in texts}
-    assert calls == [] and max(float(h.max()) for h in head.values()) < 0.99  # off by default
+    perceive = model.perception.perceive
+    head = {t: perceive(said(t)).likelihood for t in texts}
+    assert max(float(h.max()) for h in head.values()) < 0.99  # off by default
     model.config.object_category.relation_candidates = True
     relation = said(texts[0])
-    np.testing.assert_allclose(model.goal_likelihood(relation)[0], 1.0, atol=1e-6)
-    assert len(calls) == 1
-    model.object_evidence(relation, np.ones((32, 32), np.float32))  # the same frame: no pass
-    assert len(calls) == 1
+    calls.clear()
+    percept = perceive(relation)  # candidates, category match and anchor: one pass
+    np.testing.assert_allclose(percept.likelihood, 1.0, atol=1e-6)
+    assert len(calls) == 1 and percept.anchor is not None
     changed = {**relation, "rgb": relation["rgb"] + 1}  # another frame: a new pass
-    model.object_evidence(changed, np.ones((32, 32), np.float32))
+    perceive(changed)
     assert len(calls) == 2
     for text in texts[1:]:
-        np.testing.assert_allclose(model.goal_likelihood(said(text))[0], head[text], atol=1e-6)
+        np.testing.assert_allclose(perceive(said(text)).likelihood, head[text], atol=1e-6)
 
 
 def test_anchor_not_goal_zeroes_the_goal_likelihood_on_the_anchors_pixels_only():
@@ -461,23 +485,27 @@ def test_anchor_not_goal_zeroes_the_goal_likelihood_on_the_anchors_pixels_only()
         return {**_obs(), "instruction": text}
 
     relation, plain = said("find the chair near the sofa"), said("find the chair")
-    before = {o["instruction"]: model.goal_likelihood(o)[0] for o in (relation, plain)}
+
+    def goal_likelihood(obs: dict) -> np.ndarray:
+        return model.perception.perceive(obs).likelihood  # (32, 32)
+
+    before = {o["instruction"]: goal_likelihood(o) for o in (relation, plain)}
     model.config.object_category.anchor_not_goal = True
-    after = model.goal_likelihood(relation)[0]  # (32, 32)
+    after = goal_likelihood(relation)  # (32, 32)
     np.testing.assert_array_equal(after[:, :16], 0.0)  # the sofa's pixels: not the goal
     np.testing.assert_allclose(after[:, 16:], before[relation["instruction"]][:, 16:], atol=1e-6)
     assert float(before[relation["instruction"]][:, :16].max()) > 0.0
     # no relation, or the anchor is the goal's own category: the goal head's likelihood as is
-    np.testing.assert_allclose(model.goal_likelihood(plain)[0], before[plain["instruction"]])
+    np.testing.assert_allclose(goal_likelihood(plain), before[plain["instruction"]])
     same = said("find the sofa near the sofa")
     model.config.object_category.anchor_not_goal = False
-    head = model.goal_likelihood(same)[0]
+    head = goal_likelihood(same)
     model.config.object_category.anchor_not_goal = True
-    np.testing.assert_allclose(model.goal_likelihood(same)[0], head, atol=1e-6)
+    np.testing.assert_allclose(goal_likelihood(same), head, atol=1e-6)
 
 
 def test_the_checks_read_the_instruction_once_per_episode(monkeypatch):
-    import vla_gr.policy.agent as agent_module
+    import vla_gr.policy.perception as agent_module
 
     model = _model(
         "model.object_category.enabled=true",
@@ -496,7 +524,7 @@ def test_the_checks_read_the_instruction_once_per_episode(monkeypatch):
         model.select_action(obs)
         ticks = model.dual_system.navigator.ticks
     assert ticks >= 3 and reads == [obs["instruction"]]  # room, object and relation checks
-    assert model.read_instruction(obs["instruction"]) == real(
+    assert model.perception.read(obs["instruction"]) == real(
         obs["instruction"],
         model.config.object_category.categories,
         model.config.room_type.room_types,

@@ -2,31 +2,41 @@
 
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 
 import pytest
 import torch
+from omegaconf import OmegaConf
 
 from vla_gr.checkpoint import read_checkpoint
 from vla_gr.configs import load_config
 from vla_gr.evaluate import evaluate, expand_aliases
-from vla_gr.policy import VLAGRPolicy
+from vla_gr.policy import VLAGRPolicy, load_policy
+from vla_gr.policy.factory import model_key_gaps
 
 SHIPPED = Path(__file__).resolve().parents[2] / "checkpoints" / "vla_gr_cpu"
 
 
 def test_shipped_checkpoint_is_the_dual_system_and_small():
-    policy = VLAGRPolicy.from_pretrained(SHIPPED)  # verifies the SHA-256 manifest
-    assert policy.config.agent == "dual_system" and policy.dual_system.plan_every == 3
+    policy = load_policy(SHIPPED)  # verifies the SHA-256 manifest
+    assert type(policy) is VLAGRPolicy and policy.dual_system.plan_every == 3
     # S2's room check is on: a trained room-type classifier and a rejection threshold
-    assert policy.room_type is not None and policy.dual_system.room_match == policy.room_match
+    assert policy.room_type is not None and policy.perception.room_type is policy.room_type
     assert 0.0 < policy.config.navigator.room_reject_threshold < 0.5
     # and its object checks: a trained segmenter, the category threshold, the relation distance
     assert policy.object_category is not None
-    assert policy.dual_system.object_evidence == policy.object_evidence
+    assert policy.perception.object_category is policy.object_category
     assert 0.0 < policy.config.navigator.object_reject_threshold < 0.5
     size = sum(f.stat().st_size for f in SHIPPED.rglob("*") if f.is_file())
     assert size <= 20 * 2**20
+
+
+def test_shipped_checkpoint_carries_every_model_key_and_its_weights_are_unchanged():
+    saved = OmegaConf.to_container(OmegaConf.create(read_checkpoint(SHIPPED).config_yaml).model)
+    assert model_key_gaps(saved) == ([], [])
+    weights = hashlib.sha256((SHIPPED / "model.safetensors").read_bytes()).hexdigest()
+    assert weights == "953290197333eec14b4cc930247dc10b7cb6a91dd5238dc430bcc1f7ad1912ac"
 
 
 def _run(tmp_path: Path, agent: str, episodes: int) -> dict:

@@ -20,7 +20,7 @@ from vla_gr.core.grounding.instruction_reader import FIELDS
 from vla_gr.envs.instructions import parse_instruction
 from vla_gr.envs.paraphrase import TRAINING
 from vla_gr.errors import UserError
-from vla_gr.policy import VLAGRPolicy
+from vla_gr.policy import VLAGRPolicy, make_policy
 from vla_gr.training.instruction_reader import (
     UNKNOWN_OBJECTS,
     fit_reader,
@@ -135,7 +135,7 @@ def tiny_agent(tmp_path_factory) -> Path:
             "model.encoders.text_encoder=hashed", "model.s1.channels=[8,8]"]  # fmt: skip
     resolved, cfg = load_config("config_debug", tiny)
     torch.manual_seed(0)
-    tensors = {k: v.contiguous() for k, v in VLAGRPolicy(cfg.model).state_dict().items()}
+    tensors = {k: v.contiguous() for k, v in make_policy(cfg.model).state_dict().items()}
     state = {"step": 0, "vla_gr_version": __version__}
     folder = tmp_path_factory.mktemp("tiny")
     return save_checkpoint(folder, 0, tensors, state, OmegaConf.to_yaml(resolved), links=())

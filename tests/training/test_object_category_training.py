@@ -100,7 +100,7 @@ def test_trained_segmenter_is_written_with_the_object_check_and_the_rest_untouch
         k for k in written.model if k.startswith("object_category.")
     }
     policy = VLAGRPolicy.from_pretrained(out)
-    assert policy.dual_system.object_evidence == policy.object_evidence
+    assert policy.perception.object_category is policy.object_category
     assert segmentation_scores(policy.object_category, frames) == summary["eval"]
     obs = {
         "rgb": frames["rgb"][0].transpose(1, 2, 0),
@@ -114,15 +114,27 @@ def test_trained_segmenter_is_written_with_the_object_check_and_the_rest_untouch
         torch.from_numpy(frames["rgb"][:1]), torch.from_numpy(frames["depth"][:1])
     )[0]  # (1 + K, 32, 32)
     expected = float(probs[CATEGORIES.index("sofa") + 1, 10:14, 10:14].mean())
-    evidence = policy.object_evidence(obs, goal)
-    assert evidence.match == pytest.approx(expected, rel=1e-5)
+    evidence = _percept(policy, obs, goal)
+    assert evidence.category_match == pytest.approx(expected, rel=1e-5)
     tv = probs[CATEGORIES.index("tv_monitor") + 1].numpy()  # the anchor "tv", every pixel
     np.testing.assert_allclose(evidence.anchor, tv, rtol=1e-5)
-    nothing = policy.object_evidence(obs, np.zeros((32, 32), np.float32))  # no goal pixels
-    assert nothing.match is None and nothing.anchor is not None  # the anchor is still mapped
-    assert policy.object_evidence({**obs, "instruction": "find the couch"}, goal) == (None, None)
-    assert policy.object_evidence({**obs, "instruction": "find the sofa"}, goal).anchor is None
-    assert VLAGRPolicy.from_pretrained(plain).object_evidence(obs, goal) == (None, None)
+    nothing = _percept(policy, obs, np.zeros((32, 32), np.float32))  # no goal pixels
+    assert nothing.category_match is None and nothing.anchor is not None  # anchor still mapped
+    couch = _percept(policy, {**obs, "instruction": "find the couch"}, goal)  # the lexicon:
+    assert couch.category_match == pytest.approx(expected, rel=1e-5)  # "find the sofa"
+    assert couch.anchor is None
+    assert _percept(policy, {**obs, "instruction": "find the sofa"}, goal).anchor is None
+    without = _percept(VLAGRPolicy.from_pretrained(plain), obs, goal)
+    assert (without.category_match, without.anchor) == (None, None)
+
+
+def _percept(policy, obs: dict, goal: np.ndarray):
+    """The policy's percept of ``obs`` when its goal head marks ``goal`` (H, W)."""
+    policy.goal_head.likelihood = lambda rgb, depth, text: (
+        torch.from_numpy(goal)[None],  # (1, H, W)
+        torch.ones(1),  # (1,)
+    )
+    return policy.perception.perceive(obs)
 
 
 def test_bad_input_is_refused_with_the_reason(store, plain, tmp_path):

@@ -103,15 +103,19 @@ def test_trained_classifier_is_written_with_the_room_check_and_the_rest_untouche
         "depth": frames["depth"][0].transpose(1, 2, 0),
         "pose": np.zeros(3, np.float32),
     }
-    assert policy.room_match({**obs, "instruction": "find the chair"}) == 1.0
+
+    def room_match(policy, obs: dict) -> float:
+        return policy.perception.perceive(obs).room_match
+
+    assert room_match(policy, {**obs, "instruction": "find the chair"}) == 1.0
     probs = policy.room_type.probabilities(
         torch.from_numpy(frames["rgb"][:1]), torch.from_numpy(frames["depth"][:1])
     )[0]
-    kitchen = policy.room_match({**obs, "instruction": "find the chair in the kitchen"})
+    kitchen = room_match(policy, {**obs, "instruction": "find the chair in the kitchen"})
     assert kitchen == pytest.approx(float(probs[0]))
     # an agent without the classifier passes every room
     kitchen_obs = {**obs, "instruction": "find the chair in the kitchen"}
-    assert VLAGRPolicy.from_pretrained(plain).room_match(kitchen_obs) == 1.0
+    assert room_match(VLAGRPolicy.from_pretrained(plain), kitchen_obs) == 1.0
     # the classifier grafted onto an agent (the CLI): its weights, the rest of the agent's
     grafted = tmp_path / "grafted"
     args = [str(plain), str(grafted), "--classifier-from", str(out), "--reject-threshold", "0.4"]

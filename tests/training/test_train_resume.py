@@ -15,7 +15,7 @@ from safetensors.torch import load_file
 from tests.helpers import train_overrides
 from vla_gr import cli
 from vla_gr.configs import load_config
-from vla_gr.policy import VLAGRPolicy, make_fake_batch
+from vla_gr.policy import load_policy, make_fake_batch
 from vla_gr.train import train
 from vla_gr.training.logger import read_metrics
 
@@ -88,7 +88,7 @@ def test_debug_preset_trains_and_resumes_through_the_cli(tmp_path):
     run = tmp_path / "runs" / "cli"
     assert (run / "config.yaml").is_file() and list((run / "tensorboard").glob("events.*"))
     assert (run / "checkpoints" / "best").resolve().name == "step_00000002"
-    policy = VLAGRPolicy.from_pretrained(run / "checkpoints" / "best")
+    policy = load_policy(run / "checkpoints" / "best")
     saved = load_file(str(run / "checkpoints" / "best" / "model.safetensors"))
     assert all(torch.equal(v, saved[k]) for k, v in policy.state_dict().items())
     assert policy.predict_action_chunk(make_fake_batch(policy.config, 2)).shape == (2, 8, 3)

@@ -1,11 +1,10 @@
 """Agents that ``vla-gr eval`` can run: a name -> factory registry.
 
-An agent has ``reset(seed)`` (episode start; ``seed`` makes any randomness replayable),
-``act(obs) -> float32 (3,)`` and ``parameters() -> {part: count}``. It may also set
-``last_timings`` ({part: seconds} of its latest ``act``, e.g. ``{"s1": .., "s2": ..}``) so
-that the harness reports latency per part; otherwise the whole ``act`` is one "decision".
-An agent with a planner may have ``episode_summary() -> dict`` (e.g. its goal confidence),
-kept in the episode's row under ``agent``.
+An agent (an :class:`EvalAgent`) has ``reset(seed)`` (episode start; ``seed`` makes any
+randomness replayable), ``act(obs) -> float32 (3,)``, ``parameters() -> {part: count}``,
+``last_timings`` ({part: seconds} of its latest ``act``, e.g. ``{"s1": .., "s2": ..}``; {}:
+the whole ``act`` is one "decision") and ``episode_summary() -> dict`` (e.g. its goal
+confidence; kept in the episode's row under ``agent``).
 
 A factory receives ``(cfg, env)``: the validated ``VLAGRConfig`` and the environment the
 agent will run in, so that privileged agents (the geodesic expert) can read the world.
@@ -22,8 +21,9 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
+from types import MappingProxyType
 
 import numpy as np
 import torch
@@ -36,6 +36,7 @@ log = logging.getLogger(__name__)
 __all__ = [
     "AGENTS",
     "AgentError",
+    "EvalAgent",
     "PolicyAgent",
     "as_env_action",
     "agent_checkpoint",
@@ -116,7 +117,7 @@ def check_agent(name: str, cfg) -> None:
         if base == "checkpoint":
             checkpoint_policy(sub)
         elif base == "true_mask":
-            true_mask_model(sub)
+            true_mask_policy(sub)
         elif base == "true_category":
             checkpoint_policy(sub, dual_system=True, agent=base)
     except AgentError as err:
@@ -155,15 +156,32 @@ def module_parameters(module: nn.Module) -> dict[str, int]:
     return parts
 
 
-def _with_reading(summary: dict, policy) -> dict:
-    """``summary`` plus the instruction as S2 read it (``read_as``) when ``policy`` has an
-    instruction lexicon."""
-    read_as = getattr(policy, "read_as", None)
-    return summary | ({"read_as": read_as} if read_as is not None else {})
+class EvalAgent:
+    """Base of the eval agents: no parts timed, nothing to summarise, no parameters."""
+
+    def reset(self, seed: int | None = None) -> None:
+        """Episode start; ``seed`` makes any randomness replayable."""
+
+    def act(self, obs) -> np.ndarray:
+        """One action float32 (3,) for one env observation."""
+        raise NotImplementedError
+
+    #: seconds per part of the latest ``act`` (empty: one part, the decision); an agent that
+    #: times its parts sets or overrides it
+    last_timings: Mapping[str, float] = MappingProxyType({})
+
+    def episode_summary(self) -> dict:
+        """What the agent concluded this episode, kept in its row."""
+        return {}
+
+    def parameters(self) -> dict[str, int]:
+        """Parameter count per part plus ``total`` ({} without networks)."""
+        return {}
 
 
-class PolicyAgent:
-    """Any object with ``reset()`` and ``select_action(obs) -> (1, A)`` (a ``VLAGRPolicy``).
+class PolicyAgent(EvalAgent):
+    """A navigation policy (``reset()``, ``select_action(obs) -> (1, A)``,
+    ``episode_summary()``, ``last_timings``) as an eval agent.
 
     ``reset(seed)`` also seeds torch so that stochastic heads replay per episode.
     """
@@ -181,61 +199,25 @@ class PolicyAgent:
         return as_env_action(self.policy.select_action(obs))  # (A,)
 
     @property
-    def last_timings(self) -> dict[str, float] | None:
-        """The policy's per-part seconds of its last decision (S1, S2), if it reports them."""
-        return getattr(self.policy, "last_timings", None)
+    def last_timings(self) -> dict[str, float]:
+        """The policy's per-part seconds of its last decision (S1, S2; {}: one part)."""
+        return self.policy.last_timings
 
     def episode_summary(self) -> dict:
-        """The dual system's goal confidence and last mode, and with an instruction lexicon
-        the instruction as S2 read it (``read_as``); {} for an end-to-end policy."""
-        system = getattr(self.policy, "dual_system", None)
-        return _with_reading(system.episode_summary() if system is not None else {}, self.policy)
+        """What the policy concluded (the dual system's goal confidence, last mode, how S2
+        read the instruction, ...; {} for an end-to-end policy)."""
+        return self.policy.episode_summary()
 
     def parameters(self) -> dict[str, int]:
-        return module_parameters(self.policy) if isinstance(self.policy, nn.Module) else {}
+        return module_parameters(self.policy)
 
 
-def true_mask_model(cfg) -> tuple[object, nn.Module | None]:
-    """(model config, S1 network) of the true-mask agent: ``eval.checkpoint``'s dual system
-    with ``eval.model_overrides`` when a checkpoint is given, else ``cfg.model``."""
-    if cfg.eval.checkpoint:
-        policy = checkpoint_policy(cfg, dual_system=True)
-        return policy.config, policy.s1
-    if cfg.eval.model_overrides:
-        raise AgentError(
-            "agent=true_mask applies model_overrides to a checkpoint's dual system; "
-            "give checkpoint=<run>/checkpoints/best"
-        )
-    return cfg.model, None
+class UntrainedDualSystemAgent(EvalAgent):
+    """``cfg.model``'s dual system without a checkpoint or networks, driven by a privileged
+    perception (the true mask): the navigator, its GR field and the pure-pursuit S1."""
 
-
-class TrueMaskAgent:
-    """The dual system with the TRUE goal mask as S2's perception (the planner's ceiling).
-
-    Privileged: its goal likelihood is ``semantic == goal instance`` (needs the env's
-    ``semantic`` observation). The navigator, its GR field, the S1 follower (learned or pure
-    pursuit) and the schedule are ``eval.checkpoint``'s (with ``eval.model_overrides``) when
-    one is given, else ``cfg.model``'s, exactly as for the learned agent.
-    """
-
-    def __init__(self, cfg, env) -> None:
-        from vla_gr.policy.dual_system import GroundedDualSystem
-
-        self.env = env
-        model, s1 = true_mask_model(cfg)
-        self.system = GroundedDualSystem.from_model_config(self._true_mask, model, s1)
-
-    name = "true_mask"  # the registered name, for errors
-
-    def _semantic(self, obs) -> np.ndarray:
-        """The env's instance-id image (H, W); AgentError when the env does not render it."""
-        if "semantic" not in obs:
-            raise AgentError(f"agent={self.name} needs the env's semantic observation")
-        return np.asarray(obs["semantic"])
-
-    def _true_mask(self, obs) -> np.ndarray:
-        goal = int(self.env.unwrapped.goal.instance_id)
-        return (self._semantic(obs) == goal).astype(np.float32)  # (H, W)
+    def __init__(self, system) -> None:
+        self.system = system
 
     def reset(self, seed: int | None = None) -> None:
         self.system.reset()
@@ -250,11 +232,41 @@ class TrueMaskAgent:
     def episode_summary(self) -> dict:
         return self.system.episode_summary()
 
-    def parameters(self) -> dict[str, int]:
-        return {}
+
+def true_mask_agent(cfg, env) -> PolicyAgent | UntrainedDualSystemAgent:
+    """The dual system with the TRUE goal mask as S2's perception (the planner's ceiling).
+
+    Privileged: its goal likelihood is ``semantic == goal instance`` (needs the env's
+    ``semantic`` observation). The navigator, its GR field, the S1 follower (learned or pure
+    pursuit) and the schedule are ``eval.checkpoint``'s (with ``eval.model_overrides``) when
+    one is given, else ``cfg.model``'s, exactly as for the learned agent.
+    """
+    from vla_gr.policy.dual_system import GroundedDualSystem
+    from vla_gr.policy.perception import TrueMaskPerception
+
+    perception = TrueMaskPerception(env)
+    policy = true_mask_policy(cfg)
+    if policy is None:
+        system = GroundedDualSystem.from_model_config(perception, cfg.model)
+        return UntrainedDualSystemAgent(system)
+    policy.use_perception(perception)
+    return PolicyAgent(policy, cfg.eval.device)
 
 
-class TrueCategoryAgent(TrueMaskAgent):
+def true_mask_policy(cfg):
+    """``eval.checkpoint``'s dual system (with ``eval.model_overrides``) for the true-mask
+    agent; None without a checkpoint (``cfg.model``'s untrained dual system drives)."""
+    if cfg.eval.checkpoint:
+        return checkpoint_policy(cfg, dual_system=True)
+    if cfg.eval.model_overrides:
+        raise AgentError(
+            "agent=true_mask applies model_overrides to a checkpoint's dual system; "
+            "give checkpoint=<run>/checkpoints/best"
+        )
+    return None
+
+
+def true_category_agent(cfg, env) -> PolicyAgent:
     """The learned goal head with its pixels gated by the TRUE category mask (privileged).
 
     S2's likelihood is the goal head's, zeroed on pixels that do not show an object of the
@@ -265,47 +277,16 @@ class TrueCategoryAgent(TrueMaskAgent):
     room and object checks and its instruction lexicon, if it has them, run as in the
     checkpoint's agent.
     """
+    from vla_gr.policy.perception import TrueCategoryGate
 
-    name = "true_category"
-
-    def __init__(self, cfg, env) -> None:
-        from vla_gr.policy.dual_system import GroundedDualSystem
-
-        if not cfg.eval.checkpoint:
-            raise AgentError("agent=true_category gates a checkpoint's goal head; give checkpoint=")
-        self.env = env
-        self.policy = checkpoint_policy(cfg, dual_system=True, agent=self.name)
-        p = self.policy
-        self.system = GroundedDualSystem.from_model_config(
-            self._gated,
-            p.config,
-            p.s1,
-            room_match=p.room_match if p.room_type is not None else None,
-            object_evidence=p.object_evidence if p.object_category is not None else None,
-        )
-
-    def _gated(self, obs) -> tuple[np.ndarray, float]:
-        u = self.env.unwrapped
-        same = [o.instance_id for o in u.house.objects if o.category == u.goal.category]
-        mask = np.isin(self._semantic(obs), same)  # (H, W)
-        pixels, visible = self.policy.goal_likelihood(obs)  # (H, W), probability
-        return pixels * mask, visible
-
-    def reset(self, seed: int | None = None) -> None:
-        self.policy.reset()
-        super().reset(seed)
-
-    def act(self, obs) -> np.ndarray:
-        return self.system.step(self.policy.as_s2_reads(obs))  # (3,)
-
-    def episode_summary(self) -> dict:
-        return _with_reading(self.system.episode_summary(), self.policy)
-
-    def parameters(self) -> dict[str, int]:
-        return module_parameters(self.policy)
+    if not cfg.eval.checkpoint:
+        raise AgentError("agent=true_category gates a checkpoint's goal head; give checkpoint=")
+    policy = checkpoint_policy(cfg, dual_system=True, agent="true_category")
+    policy.use_perception(policy.learned_perception().gated(TrueCategoryGate(env)))
+    return PolicyAgent(policy, cfg.eval.device)
 
 
-class ExpertAgent:
+class ExpertAgent(EvalAgent):
     """The privileged geodesic expert (knows the goal's position)."""
 
     def __init__(self, cfg, env) -> None:
@@ -319,11 +300,8 @@ class ExpertAgent:
     def act(self, obs) -> np.ndarray:
         return np.asarray(self.expert.act(obs), dtype=np.float32)
 
-    def parameters(self) -> dict[str, int]:
-        return {}
 
-
-class RandomAgent:
+class RandomAgent(EvalAgent):
     """Uniform random velocities; STOP with probability ``stop_prob`` per step."""
 
     def __init__(self, stop_prob: float = 0.01) -> None:
@@ -337,9 +315,6 @@ class RandomAgent:
         v, w = self.rng.uniform(-1.0, 1.0, 2)
         stop = 1.0 if self.rng.random() < self.stop_prob else -1.0
         return np.array([v, w, stop], dtype=np.float32)
-
-    def parameters(self) -> dict[str, int]:
-        return {}
 
 
 # ----------------------------------------------------------------------------- checkpoints
@@ -370,7 +345,7 @@ def check_checkpoint(cfg, path: str | None) -> None:
 
     from vla_gr import __version__
     from vla_gr.checkpoint import CheckpointError, read_checkpoint
-    from vla_gr.configs.model_schema import ModelConfig
+    from vla_gr.policy.factory import checkpoint_model_config
 
     if not path:
         raise AgentError("agent=checkpoint needs checkpoint=<run>/checkpoints/best")
@@ -397,7 +372,9 @@ def check_checkpoint(cfg, path: str | None) -> None:
                 f"checkpoint {path} was trained with {key}={want}, this eval has {key}={have}"
             )
     try:
-        OmegaConf.to_object(OmegaConf.merge(OmegaConf.structured(ModelConfig), saved["model"]))
+        checkpoint_model_config(loaded.config_yaml, path)
+    except CheckpointError as err:
+        raise AgentError(str(err)) from None
     except Exception as err:  # noqa: BLE001 - any schema failure is the same user problem
         first = str(err).strip().splitlines()[0]
         raise AgentError(
@@ -411,28 +388,28 @@ def check_checkpoint(cfg, path: str | None) -> None:
 
 
 def checkpoint_policy(cfg, dual_system: bool = False, agent: str = "true_mask"):
-    """``VLAGRPolicy`` of ``eval.checkpoint`` with ``eval.model_overrides`` on ``eval.device``,
+    """The policy of ``eval.checkpoint`` with ``eval.model_overrides`` on ``eval.device``,
     checked first (:func:`check_checkpoint`); AgentError when it cannot be built (or is not
     a dual system when ``dual_system``; ``agent`` names who needs one)."""
     from omegaconf.errors import OmegaConfBaseException
 
     from vla_gr.checkpoint import CheckpointError
-    from vla_gr.policy import VLAGRPolicy
+    from vla_gr.policy import VLAGRPolicy, load_policy
 
     path, overrides = cfg.eval.checkpoint, list(cfg.eval.model_overrides)
     check_checkpoint(cfg, path)
+    expected = VLAGRPolicy if dual_system else None
     try:
-        policy = VLAGRPolicy.from_pretrained(path, device=cfg.eval.device, overrides=overrides)
-    except (CheckpointError, UserError) as err:
+        policy = load_policy(path, cfg.eval.device, overrides, expected=expected)
+    except CheckpointError as err:
+        if dual_system and "holds model.agent" in str(err):
+            raise AgentError(f"{err}; agent={agent} needs a dual-system checkpoint") from None
+        raise AgentError(str(err)) from None
+    except UserError as err:
         raise AgentError(str(err)) from None
     except (ValueError, OmegaConfBaseException) as err:
         first = str(err).strip().splitlines()[0]
         raise AgentError(f"model_overrides={overrides} do not apply to {path}: {first}") from None
-    if dual_system and not policy.has_goal_head:
-        raise AgentError(
-            f"checkpoint {path} has model.agent={policy.config.agent}; agent={agent} needs "
-            "a dual-system checkpoint"
-        )
     return policy.eval()
 
 
@@ -446,14 +423,10 @@ def _expert_agent(cfg, env) -> ExpertAgent:
     return ExpertAgent(cfg, env)
 
 
-@register_agent("true_mask")
-def _true_mask_agent(cfg, env) -> TrueMaskAgent:
-    return TrueMaskAgent(cfg, env)
+register_agent("true_mask")(true_mask_agent)
 
 
-@register_agent("true_category")
-def _true_category_agent(cfg, env) -> TrueCategoryAgent:
-    return TrueCategoryAgent(cfg, env)
+register_agent("true_category")(true_category_agent)
 
 
 @register_agent("random")

@@ -170,7 +170,7 @@ def run_episode(
             action = agent.act(obs)  # (3,)
             elapsed = clock() - t0
             latency.setdefault("decision", []).append(elapsed * 1e3)
-            for part, seconds in (getattr(agent, "last_timings", None) or {}).items():
+            for part, seconds in agent.last_timings.items():
                 latency.setdefault(part, []).append(seconds * 1e3)
             obs, _, terminated, truncated, info = env.step(action)
             actions.append([float(a) for a in np.asarray(action, dtype=np.float32)])
@@ -188,7 +188,7 @@ def run_episode(
     cause = failure_cause(
         bool(metrics["success"]), stopped, np.array(xy), pixels, list(distractor.values()), th
     )
-    summary = agent.episode_summary() if hasattr(agent, "episode_summary") else {}
+    summary = agent.episode_summary()
     goal = _object_summary(u.house, u.goal)
     return {
         "episode_index": int(index),

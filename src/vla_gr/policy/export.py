@@ -6,7 +6,7 @@
 Writes a verified checkpoint folder (``model.safetensors``, ``config.yaml``,
 ``trainer_state.json``, ``manifest.json``) without the optimiser / RNG state that only a
 resumed training needs. ``key=value`` overrides may change settings no weight depends on
-(:data:`~vla_gr.policy.agent.INFERENCE_SETTINGS`: the navigator, its GR field, the S1
+(:data:`~vla_gr.policy.factory.INFERENCE_SETTINGS`: the navigator, its GR field, the S1
 follower, the S2 rate); they are validated by loading the result.
 """
 
@@ -25,17 +25,35 @@ from vla_gr.errors import UserError
 __all__ = ["export_pretrained", "write_checkpoint_folder"]
 
 
-def export_pretrained(src: str | Path, dst: str | Path, overrides: Sequence[str] = ()) -> Path:
+def export_pretrained(
+    src: str | Path, dst: str | Path, overrides: Sequence[str] = (), fill_missing: bool = False
+) -> Path:
     """Copy checkpoint ``src`` to folder ``dst`` (replaced) with ``overrides`` applied; its
-    training state lists every override of ``src``'s exports and these (``export_overrides``)."""
+    training state lists every override of ``src``'s exports and these (``export_overrides``).
+
+    ``fill_missing``: a checkpoint written before some model keys existed gets each missing
+    key written with this version's default (listed in its state as ``filled_defaults``);
+    the loader never fills them itself, so use it only where those defaults are the values
+    the checkpoint was run with.
+    """
     from omegaconf import OmegaConf
 
-    from vla_gr.policy.agent import VLAGRPolicy
+    from vla_gr.configs.model_schema import ModelConfig
+    from vla_gr.policy.factory import load_policy, model_key_gaps
 
     dst = Path(dst)
-    VLAGRPolicy.from_pretrained(src, overrides=overrides)  # checks src and the overrides
     loaded = read_checkpoint(src)
     config = OmegaConf.create(loaded.config_yaml)
+    filled: list[str] = []
+    if fill_missing:
+        defaults = OmegaConf.structured(ModelConfig)
+        missing, _ = model_key_gaps(OmegaConf.to_container(config.model))
+        for key in missing:
+            value = OmegaConf.select(defaults, key)
+            OmegaConf.update(config.model, key, value, force_add=True)
+            filled.append(f"{key}={value}")
+    else:
+        load_policy(src, overrides=overrides)  # checks src and the overrides
     model = OmegaConf.merge(config.model, OmegaConf.from_dotlist(list(overrides)))
     config.model = model
     # the overrides accumulate over exports; re-exporting in place keeps the first origin
@@ -43,6 +61,8 @@ def export_pretrained(src: str | Path, dst: str | Path, overrides: Sequence[str]
     origin = loaded.state.get("exported_from", str(src)) if in_place else str(src)
     earlier = list(loaded.state.get("export_overrides", []))
     updates = {"exported_from": origin, "export_overrides": earlier + list(overrides)}
+    if filled:
+        updates["filled_defaults"] = list(loaded.state.get("filled_defaults", [])) + filled
     return write_checkpoint_folder(dst, loaded, loaded.model, OmegaConf.to_yaml(config), updates)
 
 
@@ -53,7 +73,7 @@ def write_checkpoint_folder(
     new one is complete), with the training state of checkpoint ``loaded`` (without its RNG,
     at its step) plus ``state_updates``; verified by loading the result. Files of an existing
     ``dst`` that a checkpoint does not hold (its ``eval_results.md``) are carried over."""
-    from vla_gr.policy.agent import VLAGRPolicy
+    from vla_gr.policy.factory import load_policy
 
     dst = Path(dst)
     staging = dst.parent / f".export-{dst.name}-{os.getpid()}"
@@ -71,7 +91,7 @@ def write_checkpoint_folder(
         shutil.rmtree(dst)
     os.replace(written, dst)
     shutil.rmtree(staging)
-    VLAGRPolicy.from_pretrained(dst)  # the result verifies and loads
+    load_policy(dst)  # the result verifies and loads
     return dst
 
 
@@ -82,9 +102,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         "dst", help="the folder to write (replaced if it exists; files of its own are kept)"
     )
     parser.add_argument("overrides", nargs="*", help="inference settings, e.g. navigator.x=1")
+    parser.add_argument(
+        "--fill-missing",
+        action="store_true",
+        help="write model keys the checkpoint lacks with this version's defaults",
+    )
     args = parser.parse_args(argv)
     try:
-        export_pretrained(args.src, args.dst, args.overrides)
+        export_pretrained(args.src, args.dst, args.overrides, fill_missing=args.fill_missing)
     except (UserError, ValueError, FileNotFoundError) as err:
         sys.stderr.write(f"{parser.prog}: error: {err}\n")
         return 2

@@ -60,16 +60,15 @@ def build_agent_from(
     from omegaconf import OmegaConf
 
     from vla_gr.configs.model_schema import ModelConfig
-    from vla_gr.policy.agent import VLAGRPolicy
-    from vla_gr.policy.frames import apply_peft
+    from vla_gr.policy import VLAGRPolicy, apply_peft
+    from vla_gr.policy.factory import require_agent
 
     for item in settings:
         if "=" not in item or not item.split("=", 1)[0].strip().startswith(f"{part}."):
             raise UserError(f"setting {item!r} must be key=value with a key under {part}.")
     loaded = read_checkpoint(init)
     config = OmegaConf.create(loaded.config_yaml)
-    if config.model.get("agent") != "dual_system":
-        raise UserError(f"{init} is not a dual-system agent (model.agent={config.model.agent})")
+    require_agent(config.model.get("agent"), VLAGRPolicy, init)
     if part == "s1" and "s1" in config.model and "head" in config.model.s1:
         # the head's context width follows s1.dim: a saved width must not pin a new dim
         config.model.s1.head.context_dim = None

@@ -96,7 +96,7 @@ def _init_worker(checkpoint: str, env_kwargs: dict) -> None:
     import torch
 
     from vla_gr.envs.local_teacher import LocalTeacher
-    from vla_gr.policy.agent import VLAGRPolicy
+    from vla_gr.policy import VLAGRPolicy
 
     torch.set_num_threads(1)
     env = make_env(env_kwargs)
@@ -113,7 +113,7 @@ def relabel_run(
     run_dir: str | Path, checkpoint: str | Path, out_dir: str | Path, workers: int = 1
 ) -> dict:
     """Relabel every episode of eval run ``run_dir`` (made with this agent) into ``out_dir``."""
-    from vla_gr.policy.agent import VLAGRPolicy
+    from vla_gr.policy import VLAGRPolicy
 
     out = Path(out_dir)
     if (out / "manifest.json").exists():

@@ -30,7 +30,7 @@ from vla_gr.training.logger import MetricsLogger
 from vla_gr.training.optim import load_scheduler_state, scheduler_state
 
 if TYPE_CHECKING:
-    from vla_gr.policy import VLAGRPolicy
+    from vla_gr.policy import NavigationPolicy
 
 log = logging.getLogger(__name__)
 
@@ -57,7 +57,7 @@ class Run:
     dist: DistInfo
     run_dir: Path
     config_yaml: str  # the resolved config, saved in every checkpoint
-    model: VLAGRPolicy  # the raw module: checkpoints, EMA, validation
+    model: NavigationPolicy  # the raw module: checkpoints, EMA, validation
     train_model: nn.Module  # ``model`` compiled and/or DDP-wrapped: what ``train_step`` runs
     ema: EMA | None
     optimizer: torch.optim.Optimizer

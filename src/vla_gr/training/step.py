@@ -119,14 +119,14 @@ def validate(
     model: nn.Module, loader, max_batches: int, device: torch.device, amp: str, seed: int
 ) -> tuple[float, dict[str, float]]:
     """Mean loss over up to ``max_batches`` held-out batches per rank (all ranks averaged)
-    and, for an agent with a goal head, its ``GOAL_METRICS`` on the same batches ({} else).
+    and the ``GOAL_METRICS`` of the confusion counts its ``validation_step`` returns ({}
+    when it returns none: the end-to-end policy).
 
     The noise of the flow / diffusion loss is drawn from a fixed seed inside a forked RNG,
     so successive validations are comparable and training randomness is untouched.
     """
     was_training = model.training
     model.eval()
-    grounded = bool(getattr(model, "has_goal_head", False))
     total = torch.zeros(2, device=device)  # (sum of losses * B, number of samples)
     counts: dict[str, int] = {}
     devices = [device] if device.type == "cuda" else []
@@ -137,13 +137,9 @@ def validate(
                 break
             batch = to_device(batch, device)
             with autocast(device, amp):
-                if grounded:
-                    outputs = model.goal_outputs(batch)
-                    loss = model.goal_loss(outputs)["loss"].float()
-                    for key, n in model.goal_confusion(outputs).items():
-                        counts[key] = counts.get(key, 0) + n
-                else:
-                    loss = model(batch)["loss"].float()
+                loss, batch_counts = model.validation_step(batch)
+                for key, n in batch_counts.items():
+                    counts[key] = counts.get(key, 0) + n
             B = batch["rgb"].shape[0]
             total += torch.stack([loss * B, torch.tensor(float(B), device=device)])
     model.train(was_training)

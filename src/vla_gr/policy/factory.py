@@ -1,0 +1,179 @@
+"""One class per agent, chosen by ``model.agent`` (LeRobot's ``policies/factory.py``).
+
+- :func:`make_policy` builds the class of ``config.agent`` from a ``ModelConfig``;
+- :func:`load_policy` reads a self-contained checkpoint folder and builds the class its
+  ``config.yaml`` names. Loading never fills a model setting from a code default: a
+  checkpoint whose ``model`` section lacks a key of this version, or has one this version
+  does not know, is refused in one line naming the key.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import torch
+
+from vla_gr.checkpoint import CheckpointError, load_model_state, read_checkpoint
+from vla_gr.configs.model_schema import ModelConfig
+from vla_gr.errors import ConfigError
+from vla_gr.policy.base import NavigationPolicy
+from vla_gr.policy.end_to_end import EndToEndPolicy
+from vla_gr.policy.frames import apply_peft
+from vla_gr.policy.vla_gr import VLAGRPolicy
+
+__all__ = [
+    "INFERENCE_SETTINGS",
+    "POLICY_CLASSES",
+    "RENAMED_KEYS",
+    "checkpoint_model_config",
+    "load_policy",
+    "make_policy",
+    "model_key_gaps",
+    "policy_class",
+    "require_agent",
+]
+
+#: ``model.agent`` -> the class that is that agent.
+POLICY_CLASSES: dict[str, type[NavigationPolicy]] = {
+    "dual_system": VLAGRPolicy,
+    "end_to_end": EndToEndPolicy,
+}
+#: Model keys (under ``model.``) renamed since checkpoints were first written: old -> new.
+RENAMED_KEYS: dict[str, str] = {}
+#: Model settings a loaded checkpoint may change (no weight depends on them): the planner,
+#: its GR field, which S1 drives and how it samples, the follower, the S2 schedule, the goal
+#: head's inference options (category gate, test-time flip) and the segmenter's relation
+#: candidates.
+INFERENCE_SETTINGS = (
+    "navigator.",
+    "pursuit.",
+    "gr_field.",
+    "instruction_lexicon.",
+    "dual_system.planning_frequency_hz",
+    "goal_head.category_gate",
+    "goal_head.test_time_flip",
+    "object_category.relation_candidates",
+    "object_category.anchor_not_goal",
+    "s1.kind",
+    "s1.use_s2",
+    "s1.depth_guard",
+    "s1.stop_threshold",
+    "s1.n_action_steps",
+    "s1.head.num_inference_steps",
+    "s1.head.sampler",
+)
+
+
+def policy_class(agent: str) -> type[NavigationPolicy]:
+    """The class of agent kind ``agent`` (``model.agent``); ConfigError naming the choices."""
+    if agent not in POLICY_CLASSES:
+        raise ConfigError(f"model.agent={agent!r}; valid agents: {', '.join(POLICY_CLASSES)}")
+    return POLICY_CLASSES[agent]
+
+
+def require_agent(agent: str, expected: type[NavigationPolicy], source) -> type[NavigationPolicy]:
+    """The class of ``agent`` when it is an ``expected``; CheckpointError naming ``source``
+    (a checkpoint) and the agent it holds otherwise."""
+    cls = policy_class(agent)
+    if not issubclass(cls, expected):
+        raise CheckpointError(
+            f"checkpoint {source} holds model.agent={agent} ({cls.__name__}), not a "
+            f"{expected.__name__}"
+        )
+    return cls
+
+
+def make_policy(config: ModelConfig) -> NavigationPolicy:
+    """A new (untrained) agent of the kind ``config.agent``."""
+    return policy_class(config.agent)(config)
+
+
+def _leaf_keys(tree: Mapping, prefix: str = "") -> set[str]:
+    """Dotted keys of the leaves of a nested mapping (lists and empty mappings are leaves)."""
+    keys: set[str] = set()
+    for key, value in tree.items():
+        dotted = f"{prefix}{key}"
+        if isinstance(value, Mapping) and value:
+            keys |= _leaf_keys(value, dotted + ".")
+        else:
+            keys.add(dotted)
+    return keys
+
+
+def model_key_gaps(saved: Mapping) -> tuple[list[str], list[str]]:
+    """(keys of this version's ``ModelConfig`` that ``saved`` lacks, keys of ``saved`` it does
+    not know), dotted below ``model.``, sorted."""
+    from omegaconf import OmegaConf
+
+    schema = OmegaConf.to_container(OmegaConf.structured(ModelConfig))
+    want, have = _leaf_keys(schema), _leaf_keys(saved)
+    return sorted(want - have), sorted(have - want)
+
+
+def _check_keys(saved: Mapping, path) -> None:
+    """CheckpointError in one line when ``saved`` (a checkpoint's ``model`` section) lacks a
+    key of this version's ``ModelConfig`` or has one it does not know."""
+    missing, unknown = model_key_gaps(saved)
+    for old in unknown:
+        if old in RENAMED_KEYS:
+            raise CheckpointError(
+                f"checkpoint {path}: model.{old} was renamed model.{RENAMED_KEYS[old]}; "
+                "export the checkpoint again (vla-gr export) to write the new name"
+            )
+    if unknown:
+        more = f" (and {len(unknown) - 1} more)" if len(unknown) > 1 else ""
+        raise CheckpointError(
+            f"checkpoint {path}: config.yaml has model.{unknown[0]}{more}, which this "
+            "version does not know"
+        )
+    if missing:
+        more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
+        raise CheckpointError(
+            f"checkpoint {path}: config.yaml lacks model.{missing[0]}{more}; a checkpoint "
+            "carries every model key (none is filled from code defaults)"
+        )
+
+
+def checkpoint_model_config(config_yaml: str, path, overrides: Sequence[str] = ()) -> ModelConfig:
+    """The validated ``ModelConfig`` of a checkpoint's ``config.yaml`` with inference-only
+    ``overrides`` (keys under :data:`INFERENCE_SETTINGS`) applied."""
+    from omegaconf import OmegaConf
+
+    saved = OmegaConf.create(config_yaml)
+    if "model" not in saved:
+        raise CheckpointError(f"checkpoint {path}: config.yaml has no model section")
+    for item in overrides:
+        key = item.split("=", 1)[0].strip()
+        if "=" not in item or not key.startswith(INFERENCE_SETTINGS):
+            raise ConfigError(
+                f"checkpoint override {item!r} must be key=value with a key under "
+                f"{', '.join(INFERENCE_SETTINGS)} (settings no weight depends on)"
+            )
+    _check_keys(OmegaConf.to_container(saved.model), path)
+    schema = OmegaConf.structured(ModelConfig)
+    merged = OmegaConf.merge(schema, saved.model, OmegaConf.from_dotlist(list(overrides)))
+    return OmegaConf.to_object(merged)
+
+
+def load_policy(
+    path,
+    device: torch.device | str = "cpu",
+    overrides: Sequence[str] = (),
+    expected: type[NavigationPolicy] | None = None,
+) -> NavigationPolicy:
+    """The agent of checkpoint folder ``path`` (``<run>/checkpoints/best``), verified, in
+    eval mode on ``device``: the class its ``model.agent`` names (``expected``: refuse any
+    other), PEFT layers re-applied before the weights (``model.safetensors``, the EMA
+    averages when training used EMA) are loaded. ``overrides`` (``"navigator.confirm_ticks=3"``)
+    change settings that no weight depends on."""
+    loaded = read_checkpoint(path)
+    config = checkpoint_model_config(loaded.config_yaml, path, overrides)
+    cls = (
+        policy_class(config.agent)
+        if expected is None
+        else require_agent(config.agent, expected, path)
+    )
+    policy = cls(config)
+    apply_peft(policy, config.peft)
+    load_model_state(policy, loaded.model, str(path))
+    return policy.to(device).eval()

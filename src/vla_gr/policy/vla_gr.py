@@ -1,0 +1,209 @@
+"""``VLAGRPolicy``: the VLA-GR agent, a dual system (``model.agent=dual_system``).
+
+One control step (batch 1)::
+
+    select_action(obs) -> GroundedDualSystem.step
+        every plan_every steps: perception.perceive(obs) -> Percept -> Navigator.plan -> plan
+        every step:             S1 follower (pure pursuit or the learned S1) -> (v, w, stop)
+
+Training (``forward``) fits S2's language-grounded goal head (``model.goal_head``,
+:mod:`vla_gr.core.grounding`) on the last observation frame of each window against
+``goal_mask`` (the instructed instance only; distractors are negatives). The other networks
+(room-type classifier, object-category segmenter, instruction reader, learned S1) are
+trained by their own stages and loaded from the checkpoint.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+import torch
+
+from vla_gr.configs.model_schema import ModelConfig
+from vla_gr.core.dual_system import S1Policy
+from vla_gr.core.grounding import (
+    GoalHead,
+    InstructionLexicon,
+    InstructionReader,
+    ObjectCategorySegmenter,
+    RoomTypeClassifier,
+    goal_head_loss,
+    mask_confusion,
+)
+from vla_gr.policy.base import NavigationPolicy
+from vla_gr.policy.dual_system import GroundedDualSystem
+from vla_gr.policy.frames import as_instructions
+from vla_gr.policy.perception import LearnedPerception, Perception
+
+__all__ = ["VLAGRPolicy"]
+
+_OBS_KEYS = ("rgb", "depth", "pose")
+
+
+class VLAGRPolicy(NavigationPolicy):
+    """The dual-system agent: S2 (perception + GR-field navigator) steering S1."""
+
+    def __init__(self, config: ModelConfig) -> None:
+        super().__init__(config)
+        c = config
+        self.goal_head = GoalHead(c.goal_head)
+        self.room_type = RoomTypeClassifier(c.room_type) if c.room_type.enabled else None
+        self.object_category = (
+            ObjectCategorySegmenter(c.object_category) if c.object_category.enabled else None
+        )
+        self.instruction_reader = (
+            InstructionReader(c.instruction_reader) if c.instruction_reader.enabled else None
+        )
+        self.instruction_lexicon = (
+            InstructionLexicon(c.instruction_lexicon) if c.instruction_lexicon.enabled else None
+        )
+        # the learned S1 is built whatever s1.kind says, so one checkpoint serves both kinds
+        self.s1 = S1Policy(c.s1)
+        self.freeze_parts()
+        self.use_perception(self.learned_perception())
+
+    def learned_perception(self) -> LearnedPerception:
+        """S2's perception from this agent's own networks."""
+        return LearnedPerception(
+            self.config,
+            self.goal_head,
+            self.room_type,
+            self.object_category,
+            self.instruction_reader,
+            self.instruction_lexicon,
+            device=self.device,
+        )
+
+    def use_perception(self, perception: Perception) -> None:
+        """Drive with ``perception`` as S2's (the privileged ablations pass the true mask or
+        a gated copy of :meth:`learned_perception`); a new episode starts."""
+        self.dual_system = GroundedDualSystem.from_model_config(perception, self.config, self.s1)
+
+    def _apply(self, fn, *args, **kwargs):
+        """``.to()`` / ``.cuda()``: the perception follows the networks to their device."""
+        out = super()._apply(fn, *args, **kwargs)
+        perception = getattr(getattr(self, "dual_system", None), "perception", None)
+        if isinstance(perception, LearnedPerception):
+            perception.device = self.device
+        return out
+
+    # ------------------------------------------------------------------ training
+    def forward(self, batch: Mapping) -> dict[str, torch.Tensor]:
+        """Training loss of the goal head on the last observation frame's ``goal_mask``.
+
+        Returns ``{"loss": scalar, ...}`` (further detached scalars, for logging).
+        """
+        losses = self.goal_loss(self.goal_outputs(batch))
+        return {k: v if k == "loss" else v.detach() for k, v in losses.items()}
+
+    def goal_outputs(self, batch: Mapping) -> dict:
+        """The goal head on the last observation frame of each window of ``batch``.
+
+        Returns ``pixel_logits`` (B, H, W), ``visible_logits`` (B,), the ``target`` goal mask
+        (B, H, W) bool and, when the batch has them, ``distractors`` (B, H, W) bool; a head
+        with a category output adds ``category_logits`` (B, H, W).
+        """
+        rgb, depth = batch["rgb"], batch["depth"]  # (B, T, 3, H, W), (B, T, 1, H, W)
+        if rgb.dim() != 5 or depth.dim() != 5:
+            raise ValueError(
+                f"batch['rgb'] / ['depth'] must be (B, T, C, H, W); got {tuple(rgb.shape)} / "
+                f"{tuple(depth.shape)}"
+            )
+        if "goal_mask" not in batch:
+            raise ValueError("training the goal head needs batch['goal_mask'] (B, T, 1, H, W)")
+        instructions = as_instructions(batch["instruction"], "batch['instruction']")
+        out = dict(self.goal_head(rgb[:, -1], depth[:, -1], instructions))
+        out["target"] = batch["goal_mask"][:, -1, 0].bool()  # (B, H, W)
+        if "distractor_mask" in batch:
+            out["distractors"] = batch["distractor_mask"][:, -1, 0].bool()  # (B, H, W)
+        elif "category_logits" in out:
+            raise ValueError(
+                "model.goal_head.category_head needs batch['distractor_mask'] (its target is the "
+                "goal mask | the distractor mask); collect the store again to record it"
+            )
+        return out
+
+    def goal_loss(self, outputs: Mapping) -> dict[str, torch.Tensor]:
+        """``goal_head_loss`` of :meth:`goal_outputs` with ``model.grounding``'s weights."""
+        g = self.config.grounding
+        category = outputs.get("category_logits")  # (B, H, W) or None
+        category_target = None  # (B, H, W) bool: every instance of the instructed category
+        if category is not None:
+            category, category_target = category.float(), outputs["target"] | outputs["distractors"]
+        return goal_head_loss(
+            outputs["pixel_logits"].float(),
+            outputs["visible_logits"].float(),
+            outputs["target"],
+            min_pixels=g.min_pixels,
+            pos_weight=g.pos_weight,
+            dice_weight=g.dice_weight,
+            visible_weight=g.visible_weight,
+            category_logits=category,
+            category_target=category_target,
+            category_weight=g.category_weight,
+        )
+
+    def goal_confusion(self, outputs: Mapping) -> dict[str, int]:
+        """``mask_confusion`` counts of :meth:`goal_outputs` (``model.grounding`` thresholds)."""
+        g = self.config.grounding
+        return mask_confusion(
+            self.goal_head.pixel_probability(outputs),
+            torch.sigmoid(outputs["visible_logits"].float()),
+            outputs["target"],
+            threshold=g.threshold,
+            min_pixels=g.min_pixels,
+            distractors=outputs.get("distractors"),
+        )
+
+    def validation_step(self, batch: Mapping) -> tuple[torch.Tensor, dict[str, int]]:
+        """The goal head's held-out loss and its pixel / visibility confusion counts."""
+        outputs = self.goal_outputs(batch)
+        return self.goal_loss(outputs)["loss"].float(), self.goal_confusion(outputs)
+
+    # ------------------------------------------------------------------ inference
+    @property
+    def perception(self) -> Perception:
+        """S2's perception this agent drives with."""
+        return self.dual_system.perception
+
+    @property
+    def last_timings(self) -> dict[str, float]:
+        """Seconds of the last step's parts: ``s1``; on S2 ticks ``s2``, ``s2_perception``,
+        ``s2_navigator``."""
+        return self.dual_system.last_timings
+
+    def episode_summary(self) -> dict:
+        return self.dual_system.episode_summary()
+
+    @torch.no_grad()
+    def select_action(self, obs: Mapping) -> torch.Tensor:
+        """One control step of the dual system -> action ``(1, A)`` (S2 every ``plan_every``
+        steps, S1 every step; see :mod:`vla_gr.policy.dual_system`). ``obs`` is one env
+        observation, optionally with a leading batch of one."""
+        action = self.dual_system.step(_single_observation(obs))  # (A,)
+        return torch.from_numpy(action).to(self.device)[None]  # (1, A)
+
+    @torch.no_grad()
+    def predict_action_chunk(self, obs: Mapping) -> torch.Tensor:
+        """The dual system is stateful (its map) and its S1 follower decides one step at a
+        time: one environment observation in, a chunk of one ``(1, 1, A)`` out."""
+        return self.select_action(obs)[:, None]  # (1, 1, A)
+
+    def reset(self) -> None:
+        """New episode: empty map, no plan, the instruction read again."""
+        self.dual_system.reset()
+
+
+def _single_observation(obs: Mapping) -> dict:
+    """One env observation (``rgb`` (H, W, 3), ...) from one with an optional batch of 1."""
+    rgb = np.asarray(obs["rgb"])
+    if rgb.ndim == 3:
+        return dict(obs)
+    if rgb.ndim != 4 or rgb.shape[0] != 1:
+        raise ValueError(
+            f"the dual system runs at batch 1; got obs['rgb'] of shape {tuple(rgb.shape)}"
+        )
+    single = {k: np.asarray(obs[k])[0] for k in _OBS_KEYS}
+    single["instruction"] = as_instructions(obs["instruction"], "obs['instruction']")[0]
+    return single
