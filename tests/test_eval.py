@@ -122,7 +122,7 @@ def test_an_index_whose_house_hosts_no_episode_is_skipped_and_named(tmp_path, ca
     out = tmp_path / "skip"
     args = ("agent=random", "split=val", "first_episode=3955", "num_episodes=2",
             "env.max_episode_steps=5")  # fmt: skip
-    with caplog.at_level(logging.WARNING, logger="vla_gr.evaluate"):
+    with caplog.at_level(logging.WARNING, logger="vla_gr.evaluation.harness"):
         metrics = evaluate(cfg_for(out, *args))
     assert "1 of 2 episode indices skipped" in caplog.text
     assert metrics["num_episodes"] == 2 and metrics["metrics"]["episodes"] == 1

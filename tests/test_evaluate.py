@@ -14,7 +14,10 @@ KEYS = ("success", "spl", "soft_spl", "collisions", "collision_rate", "distance_
 
 
 class Scripted:
-    """A hand-made policy: always the same action; counts its resets."""
+    """A hand-made policy (the interface of ``vla_gr.policy.NavigationPolicy``): always the
+    same action; counts its resets."""
+
+    last_timings: dict[str, float] = {}  # one part: the decision
 
     def __init__(self, action) -> None:
         self.action = np.asarray(action, dtype=np.float32)  # (3,)
@@ -26,6 +29,9 @@ class Scripted:
     def select_action(self, obs) -> np.ndarray:
         assert obs["rgb"].shape == (16, 16, 3)
         return self.action[None]  # (1, 3)
+
+    def episode_summary(self) -> dict:
+        return {}
 
 
 def test_tiny_untrained_policy_gives_one_info_with_the_metrics_within_budget():

@@ -2,7 +2,8 @@
 
 Every app subcommand takes ``--config-name NAME``, Hydra ``key=value`` overrides and
 ``--verbose``, and is also runnable as ``python -m vla_gr.<module>``. ``vla-gr store
-verify PATH`` checks an episode store, ``vla-gr store copy SRC DST`` rewrites one.
+verify PATH`` checks an episode store, ``vla-gr store copy SRC DST`` rewrites one;
+``vla-gr export SRC DST [key=value ...]`` writes a checkpoint for shipping.
 Errors a user causes end in one or two lines on stderr and exit code 2 (see
 ``vla_gr.configs.command``).
 """
@@ -68,6 +69,21 @@ def build_parser() -> argparse.ArgumentParser:
     copy.add_argument("--skip-damaged", action="store_true", help="copy only the intact episodes")
     copy.add_argument("--overwrite", action="store_true", help="replace dst if it exists")
     add_verbose_argument(copy)
+    export = sub.add_parser(
+        "export",
+        help="write a checkpoint for shipping (inference settings changed)",
+        description="Copy checkpoint SRC to folder DST (replaced; files of its own are kept) "
+        "without optimiser state, with inference-only settings changed.",
+    )
+    export.add_argument("src", help="a checkpoint folder, e.g. <run>/checkpoints/best")
+    export.add_argument("dst", help="the folder to write")
+    export.add_argument("overrides", nargs="*", help="inference settings, e.g. navigator.x=1")
+    export.add_argument(
+        "--fill-missing",
+        action="store_true",
+        help="write model keys the checkpoint lacks with this version's defaults",
+    )
+    add_verbose_argument(export)
     return parser
 
 
@@ -90,6 +106,15 @@ def copy_store_command(src: str, dst: str, skip_damaged: bool, overwrite: bool) 
     return 0
 
 
+def export_command(src: str, dst: str, overrides: Sequence[str], fill_missing: bool) -> int:
+    """Export checkpoint ``src`` to ``dst``; prints the folder written; 0 on success."""
+    from vla_gr.policy.export import export_pretrained
+
+    out = export_pretrained(src, dst, overrides, fill_missing=fill_missing)
+    sys.stdout.write(f"{out}\n")
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_logging()
@@ -106,6 +131,16 @@ def main(argv: Sequence[str] | None = None) -> int:
             args.dst,
             args.skip_damaged,
             args.overwrite,
+            verbose=args.verbose,
+        )
+    if args.command == "export":
+        return run_command(
+            prog,
+            export_command,
+            args.src,
+            args.dst,
+            args.overrides,
+            args.fill_missing,
             verbose=args.verbose,
         )
     func = _resolve(COMMANDS[args.command][0])

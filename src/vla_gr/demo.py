@@ -1,16 +1,15 @@
 """``vla-gr demo`` (``make demo``): the shipped agent on ``val`` episodes, its table and report.
 
-Runs :func:`vla_gr.evaluate.evaluate` with ``demo.*`` in place of ``eval.*``: by default the
-agent checkpoint shipped in the repository (``checkpoints/vla_gr_cpu``, trained with
+Runs :func:`vla_gr.evaluation.harness.evaluate` with ``demo.*`` in place of ``eval.*``: by
+default the agent checkpoint shipped in the repository (``checkpoints/vla_gr_cpu``, trained with
 ``config_cpu`` on a 2-core CPU) on 20 ``val`` episodes (houses it never saw) in two worker
 processes. ``demo.output_dir`` (default ``outputs/demo``) gets the evaluation's run folder:
 ``metrics.json``, ``episodes.jsonl``, ``report.md`` with bar charts, top-down trajectories
 and RGB | depth | map GIFs. The table is printed to stdout.
 
-``vla-gr demo demo.train=true`` is the whole pipeline from an empty folder: collect the
-expert data if missing, train the recipe's agent; for a dual system, run the S1 stage
-(``training.s1``: rollouts, teacher relabelling, S1 training; :mod:`vla_gr.training.s1_stage`);
-then evaluate the result.
+``vla-gr demo demo.train=true`` first runs the recipe's stages (``pipeline.stages``, as
+``vla-gr train`` does; ``config_cpu``: expert data, goal head, rollouts, S1 data, learned S1)
+and evaluates the last stage's agent.
 """
 
 from __future__ import annotations
@@ -42,21 +41,23 @@ def _fresh_output_dir(path: Path) -> None:
 def run_demo(cfg, resolved=None) -> dict:
     """Run the demo for a validated ``VLAGRConfig``; returns the evaluation's metrics."""
     from vla_gr.envs.metrics import format_table
-    from vla_gr.evaluate import evaluate
+    from vla_gr.evaluation.harness import evaluate
     from vla_gr.evaluation.report import table_row
 
     d = cfg.demo
     checkpoint = d.checkpoint
-    if d.train:
+    if d.train:  # the recipe's stages (as `vla-gr train` runs them); its last product drives
+        from omegaconf import OmegaConf
+
         from vla_gr.train import train
+        from vla_gr.training.pipeline import run_pipeline
+        from vla_gr.training.stages import Services
 
-        summary = train(cfg, resolved)
-        checkpoint = str(Path(summary["run_dir"]) / "checkpoints" / "best")
-        if cfg.model.agent == "dual_system" and cfg.training.s1.enabled:
-            from vla_gr.training.s1_stage import run_s1_stage
-
-            stage_dir = Path(summary["run_dir"]) / "s1_stage"
-            checkpoint = str(run_s1_stage(cfg, checkpoint, stage_dir))
+        if not cfg.pipeline.stages:
+            raise UserError("demo.train=true runs the recipe's pipeline.stages; it has none")
+        resolved = resolved if resolved is not None else OmegaConf.structured(cfg)
+        records = run_pipeline(resolved, cfg, Services(train=train, evaluate=evaluate))
+        checkpoint = list(records.values())[-1]["product"]
     out_dir = Path(d.output_dir)
     _fresh_output_dir(out_dir)
     eval_cfg = dataclasses.replace(

@@ -1,4 +1,9 @@
-"""``vla-gr train``: train the navigation agent on expert episodes.
+"""``vla-gr train``: train the navigation agent on expert episodes, or run a recipe's stages.
+
+A recipe with ``pipeline.stages`` (e.g. ``--config-name recipe_vla_gr_cpu``) runs them in
+order (:mod:`vla_gr.training.pipeline`: collect, train, rollouts, DAgger, S1 data, S1,
+export), each resumable and skipped when its output is up to date; otherwise one training
+run as below.
 
 Runs single-process or under ``torchrun --nproc_per_node=N -m vla_gr.train --config-name
 config_server`` (DDP: NCCL on GPU, gloo on CPU). Read top to bottom:
@@ -173,7 +178,9 @@ def maybe_validate(run: Run, state: TrainState) -> bool:
                 model, run.val_loader, t.val_batches, device, t.amp, run.cfg.seed
             )
             state.best_val_loss = min(state.best_val_loss, state.val_loss)
-        closed = closed_loop_metrics(model, run.cfg, run.dist, lambda: autocast(device, t.amp))
+        closed = closed_loop_metrics(
+            model, run.cfg, run.dist, lambda: autocast(device, t.amp), _rollout_summary
+        )
         state.evals = held_out | closed
     score = best_score(t.best_metric, state.val_loss, state.evals)
     is_best = score > state.score
@@ -277,6 +284,13 @@ def _set_up(cfg: VLAGRConfig, resolved: DictConfig, dist: DistInfo, resume_step:
     )
 
 
+def _rollout_summary(policy, env_kwargs: dict, indices, device) -> dict[str, float]:
+    """Closed-loop validation's rollouts: the eval harness's episode loop, averaged."""
+    from vla_gr.evaluation.runner import rollout_policy, summarize
+
+    return summarize(rollout_policy(policy, env_kwargs, indices, device))
+
+
 def _run_dir(cfg: VLAGRConfig, dist: DistInfo) -> Path:
     """The run folder: the resumed run's, or ``output_dir/run_name`` (timestamp by default)."""
     t = cfg.training
@@ -337,6 +351,8 @@ def run_from_cli(config_name: str, overrides: Sequence[str]) -> int:
 
     resolved, cfg = load_config(config_name, overrides)
     logging.getLogger("vla_gr").setLevel(cfg.logging.level)
+    if cfg.pipeline.stages:
+        return _run_stages(cfg, resolved)
     try:
         summary = train(cfg, resolved)
     except (ckpt.CheckpointError, FileNotFoundError) as err:
@@ -344,6 +360,25 @@ def run_from_cli(config_name: str, overrides: Sequence[str]) -> int:
         return 2
     if not summary.get("already_finished"):
         log.info("done: %s", summary)
+    return 0
+
+
+def _run_stages(cfg: VLAGRConfig, resolved: DictConfig) -> int:
+    """The recipe's stages (``pipeline.stages``), handed the training loop and the
+    evaluation harness; a table of each stage's product and time."""
+    from vla_gr.evaluation.harness import evaluate
+    from vla_gr.training.pipeline import run_pipeline
+    from vla_gr.training.stages import Services
+
+    try:
+        records = run_pipeline(resolved, cfg, Services(train=train, evaluate=evaluate))
+    except (ckpt.CheckpointError, FileNotFoundError) as err:
+        log.error("%s", err)
+        return 2
+    lines = ["| stage | kind | seconds | product |", "|---|---|---|---|"]
+    lines += [f"| {name} | {r['kind']} | {r['seconds']:.0f} | {r['product']} |"
+              for name, r in records.items()]  # fmt: skip
+    sys.stdout.write("\n".join(lines) + "\n")
     return 0
 
 

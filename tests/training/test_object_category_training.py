@@ -25,7 +25,6 @@ from vla_gr.training.object_category import (
     segmentation_scores,
     train_object_category,
 )
-from vla_gr.training.object_category import main as object_category_main
 from vla_gr.training.object_labels import frame_categories
 
 SHIPPED = Path(__file__).resolve().parents[2] / "checkpoints" / "vla_gr_cpu"
@@ -144,5 +143,5 @@ def test_bad_input_is_refused_with_the_reason(store, plain, tmp_path):
     one_house = {k: v[frames["house"] == frames["house"][0]] for k, v in frames.items()}
     with pytest.raises(UserError, match="training needs 2 or more"):
         train_object_category(plain, tmp_path / "x", one_house, CATEGORIES, steps=1)
-    assert object_category_main([str(plain), str(tmp_path / "y"), "--store", str(store),
-                                 "--first", "9"]) == 2  # fmt: skip
+    with pytest.raises(UserError, match="selects none"):  # no stored episode from 9 on
+        category_frames(store, CATEGORIES, first=9)

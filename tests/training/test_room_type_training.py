@@ -17,9 +17,8 @@ from vla_gr.envs.episodes import EpisodeSpec
 from vla_gr.envs.house import generate_house
 from vla_gr.errors import UserError
 from vla_gr.policy import VLAGRPolicy
-from vla_gr.training.agent_stage import build_agent_from, write_agent
+from vla_gr.training.agent_stage import build_agent_from, graft_part, write_agent
 from vla_gr.training.room_type import frame_rooms, room_accuracy, room_frames, train_room_type
-from vla_gr.training.room_type import main as room_type_main
 
 SHIPPED = Path(__file__).resolve().parents[2] / "checkpoints" / "vla_gr_cpu"
 ROOMS = ["kitchen", "living_room", "bedroom", "bathroom", "office", "hallway"]
@@ -116,18 +115,17 @@ def test_trained_classifier_is_written_with_the_room_check_and_the_rest_untouche
     # an agent without the classifier passes every room
     kitchen_obs = {**obs, "instruction": "find the chair in the kitchen"}
     assert room_match(VLAGRPolicy.from_pretrained(plain), kitchen_obs) == 1.0
-    # the classifier grafted onto an agent (the CLI): its weights, the rest of the agent's
+    # the classifier grafted onto an agent (a graft stage): its weights, the rest the agent's
     grafted = tmp_path / "grafted"
-    args = [str(plain), str(grafted), "--classifier-from", str(out), "--reject-threshold", "0.4"]
-    assert room_type_main(args) == 0
+    graft_part(plain, out, "room_type", grafted, ["navigator.room_reject_threshold=0.4"])
     again = read_checkpoint(grafted)
     assert again.model.keys() == written.model.keys()
     for name, value in written.model.items():
         assert torch.equal(again.model[name], value), name
     model = OmegaConf.create(again.config_yaml).model
     assert model.room_type.enabled and model.navigator.room_reject_threshold == 0.4
-    refused = [str(plain), str(tmp_path / "no"), "--classifier-from", str(plain)]
-    assert room_type_main(refused) == 2  # a donor without a classifier
+    with pytest.raises(UserError, match="holds no room_type weights"):
+        graft_part(plain, plain, "room_type", tmp_path / "no")  # a donor without one
 
 
 def test_frames_labelled_in_other_room_types_are_refused(store, plain, tmp_path):

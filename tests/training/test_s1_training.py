@@ -25,7 +25,6 @@ from vla_gr.evaluate import evaluate, expand_aliases
 from vla_gr.policy import VLAGRPolicy
 from vla_gr.training.dagger import train_run
 from vla_gr.training.s1 import S1Batches, _validate, plans_without_s2, train_s1
-from vla_gr.training.s1 import main as s1_main
 from vla_gr.training.s1_data import load_s1_data, relabel_run, write_s1_part
 
 SHIPPED = Path(__file__).resolve().parents[2] / "checkpoints" / "vla_gr_cpu"
@@ -272,14 +271,11 @@ def test_trained_s1_checkpoint_loads_learned_with_the_init_s2(round0, tmp_path):
     env.close()
 
 
-def test_cli_trains_an_s1_of_another_width(round0, tmp_path, monkeypatch):
+def test_an_s1_of_another_width_is_trained_from_its_settings(round0, tmp_path):
     _, data_dir = round0
-    monkeypatch.setattr(torch, "set_num_threads", lambda n: None)  # the test session's 1
-    code = s1_main([str(SHIPPED), str(tmp_path / "narrow"), "--data", str(data_dir),
-                    "--steps", "1", "--batch-size", "8",
-                    "--set", "s1.dim=32", "s1.head.hidden_dim=16"])  # fmt: skip
-    assert code == 0
+    train_s1(SHIPPED, tmp_path / "narrow", [data_dir], steps=1, batch_size=8,
+             settings=["s1.dim=32", "s1.head.hidden_dim=16"])  # fmt: skip
     policy = VLAGRPolicy.from_pretrained(tmp_path / "narrow")
     assert policy.config.s1.dim == 32 and policy.s1.head.context_dim == 32
-    assert s1_main([str(SHIPPED), str(tmp_path / "x"), "--data", str(data_dir),
-                    "--set", "dim=32"]) == 2  # fmt: skip
+    with pytest.raises(UserError, match="key under s1"):
+        train_s1(SHIPPED, tmp_path / "x", [data_dir], steps=1, settings=["dim=32"])

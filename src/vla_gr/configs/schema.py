@@ -13,6 +13,7 @@ from hydra.core.config_store import ConfigStore
 from omegaconf import OmegaConf
 
 from vla_gr.configs.model_schema import FOLLOWS, ModelConfig
+from vla_gr.configs.pipeline_schema import PipelineConfig
 from vla_gr.configs.training_schema import (
     LoggingConfig,
     TrainingConfig,
@@ -187,6 +188,7 @@ class VLAGRConfig:
     model: ModelConfig = field(default_factory=ModelConfig)
     training: TrainingConfig = field(default_factory=TrainingConfig)
     logging: LoggingConfig = field(default_factory=LoggingConfig)
+    pipeline: PipelineConfig = field(default_factory=PipelineConfig)  # the staged recipe
 
     def __post_init__(self) -> None:
         check_training_for_agent(self.training, self.model.agent)

@@ -20,13 +20,10 @@ CLOSED_LOOP_METRICS = ("success", "spl")
 
 @dataclass
 class S1StageConfig:
-    """The S1 stage of a dual-system agent (``training.s1``): after the goal head is trained,
-    roll the agent out on ``train`` episodes, relabel its states with the local teacher and
-    train the learned S1 (:mod:`vla_gr.training.s1_stage`)."""
+    """The learned S1 of a dual-system agent (``training.s1``), trained by a recipe's
+    ``s1_data`` stage (the agent's rollouts relabelled by the local teacher, in ``workers``
+    processes) and ``s1`` stage (:mod:`vla_gr.training.stages`)."""
 
-    enabled: bool = True  # run the stage in `vla-gr demo demo.train=true`
-    first_episode: int = 1000  # the train episodes the agent is rolled out on
-    episodes: int = 160
     workers: int = 2
     steps: int = 3000
     batch_size: int = 256
@@ -34,9 +31,57 @@ class S1StageConfig:
     settings: list[str] = field(default_factory=list)  # s1.* model settings, e.g. the head
 
     def __post_init__(self) -> None:
-        check_positive("training.s1.first_episode", self.first_episode, allow_zero=True)
-        for key in ("episodes", "workers", "steps", "batch_size", "lr"):
+        for key in ("workers", "steps", "batch_size", "lr"):
             check_positive(f"training.s1.{key}", getattr(self, key))
+
+
+@dataclass
+class FramePartStageConfig:
+    """A part of S2 trained on stored frames by a recipe stage (the room-type classifier,
+    ``training.room_type``; the object-category segmenter, ``training.object_category``)."""
+
+    first: int = 0  # first stored episode read
+    episodes: int | None = None  # stored episodes read (None: all from ``first``)
+    stride: int = 8  # every stride-th frame
+    steps: int = 2000
+    batch_size: int = 256
+    lr: float = 2e-3
+    reject_threshold: float = 0.2  # the navigator's rejection threshold written with the part
+    background_weight: float = 0.5  # the segmenter's background pixels' loss weight
+    settings: list[str] = field(default_factory=list)  # <part>.* model settings
+
+    def __post_init__(self) -> None:
+        check_positive("training.<part>.first", self.first, allow_zero=True)
+        if self.episodes is not None:
+            check_positive("training.<part>.episodes", self.episodes)
+        for key in ("stride", "steps", "batch_size", "lr", "background_weight"):
+            check_positive(f"training.<part>.{key}", getattr(self, key))
+        if not 0.0 <= self.reject_threshold <= 1.0:
+            raise ValueError(
+                f"training.<part>.reject_threshold={self.reject_threshold} must be in [0, 1]"
+            )
+
+
+@dataclass
+class ReaderStageConfig:
+    """The instruction reader trained by a recipe stage on generated instructions
+    (``training.instruction_reader``)."""
+
+    count: int = 12000  # generated training instructions
+    steps: int = 1500
+    batch_size: int = 256
+    lr: float = 2e-3
+    eval_count: int = 2000  # instructions per reported vocabulary
+    token_dropout: float = 0.0  # probability a training token is hidden from the attention
+    settings: list[str] = field(default_factory=list)  # instruction_reader.* model settings
+
+    def __post_init__(self) -> None:
+        for key in ("count", "steps", "batch_size", "lr", "eval_count"):
+            check_positive(f"training.instruction_reader.{key}", getattr(self, key))
+        if not 0.0 <= self.token_dropout < 1.0:
+            raise ValueError(
+                f"training.instruction_reader.token_dropout={self.token_dropout} must be in [0, 1)"
+            )
 
 
 @dataclass
@@ -96,7 +141,17 @@ class TrainingConfig:
     output_dir: str = "outputs/train"
     run_name: str | None = None  # default: a timestamp
     log_every: int = 10
-    s1: S1StageConfig = field(default_factory=S1StageConfig)  # dual system: the S1 stage
+    s1: S1StageConfig = field(default_factory=S1StageConfig)
+    # S2's parts trained on frames or generated instructions by recipe stages
+    room_type: FramePartStageConfig = field(default_factory=FramePartStageConfig)
+    object_category: FramePartStageConfig = field(
+        default_factory=lambda: FramePartStageConfig(
+            steps=3000, batch_size=64, reject_threshold=0.3
+        )
+    )
+    instruction_reader: ReaderStageConfig = field(
+        default_factory=ReaderStageConfig
+    )  # dual system: the S1 stage
 
     def __post_init__(self) -> None:
         check_choice("training.if_missing", self.if_missing, IF_MISSING)

@@ -209,7 +209,7 @@ class PolicyAgent(EvalAgent):
         return self.policy.episode_summary()
 
     def parameters(self) -> dict[str, int]:
-        return module_parameters(self.policy)
+        return module_parameters(self.policy) if isinstance(self.policy, nn.Module) else {}
 
 
 class UntrainedDualSystemAgent(EvalAgent):

@@ -221,7 +221,8 @@ def rollout_policy(
 ) -> list[dict]:
     """Run ``policy`` on each episode index of ``episodes``; one final info dict per episode.
 
-    ``policy`` needs ``reset()`` and ``select_action(obs) -> (1, A)``; an ``nn.Module`` is
+    ``policy`` has the interface of :class:`vla_gr.policy.NavigationPolicy` (``reset()``,
+    ``select_action(obs) -> (1, A)``, ``last_timings``, ``episode_summary()``); an ``nn.Module`` is
     moved to ``device`` and put in eval mode for the rollout (its train/eval mode is restored
     afterwards). ``env_kwargs`` go to ``gymnasium.make("VLAGR/ObjectNav-v0", ...)``
     (``max_episode_steps`` is the step budget). Episode ``k`` is ``env.reset(seed=k)``.

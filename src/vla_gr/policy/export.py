@@ -1,7 +1,6 @@
 """Export a trained agent for shipping: its weights + config, optional inference settings changed.
 
-    python -m vla_gr.policy.export <run>/checkpoints/best checkpoints/vla_gr_cpu \
-        navigator.confirm_ticks=4
+    vla-gr export <run>/checkpoints/best checkpoints/vla_gr_cpu navigator.confirm_ticks=4
 
 Writes a verified checkpoint folder (``model.safetensors``, ``config.yaml``,
 ``trainer_state.json``, ``manifest.json``) without the optimiser / RNG state that only a
@@ -12,15 +11,12 @@ follower, the S2 rate); they are validated by loading the result.
 
 from __future__ import annotations
 
-import argparse
 import os
 import shutil
-import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from vla_gr.checkpoint import read_checkpoint, save_checkpoint
-from vla_gr.errors import UserError
 
 __all__ = ["export_pretrained", "write_checkpoint_folder"]
 
@@ -93,28 +89,3 @@ def write_checkpoint_folder(
     shutil.rmtree(staging)
     load_policy(dst)  # the result verifies and loads
     return dst
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m vla_gr.policy.export", description=__doc__)
-    parser.add_argument("src", help="a checkpoint folder, e.g. <run>/checkpoints/best")
-    parser.add_argument(
-        "dst", help="the folder to write (replaced if it exists; files of its own are kept)"
-    )
-    parser.add_argument("overrides", nargs="*", help="inference settings, e.g. navigator.x=1")
-    parser.add_argument(
-        "--fill-missing",
-        action="store_true",
-        help="write model keys the checkpoint lacks with this version's defaults",
-    )
-    args = parser.parse_args(argv)
-    try:
-        export_pretrained(args.src, args.dst, args.overrides, fill_missing=args.fill_missing)
-    except (UserError, ValueError, FileNotFoundError) as err:
-        sys.stderr.write(f"{parser.prog}: error: {err}\n")
-        return 2
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -12,7 +12,6 @@ that ``vla-gr eval`` loads like any other. The two S2 checks learn from labelled
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import time
@@ -28,16 +27,13 @@ from vla_gr.errors import UserError
 log = logging.getLogger(__name__)
 
 __all__ = [
-    "add_frame_training_arguments",
     "build_agent_from",
     "finish_part",
     "fit_part",
-    "frame_part_parser",
     "graft_part",
     "labelled_frames",
     "part_setting",
     "train_frame_part",
-    "train_from_args",
     "write_agent",
 ]
 
@@ -320,59 +316,4 @@ def train_frame_part(
     return finish_part(
         policy, loaded, config, out, part, summary,
         lambda frames: evaluate(module, frames), eval_frames,
-    )  # fmt: skip
-
-
-def frame_part_parser(
-    prog: str, description: str | None, role: str, store_required: bool = True
-) -> argparse.ArgumentParser:
-    """The command line of a frame-trained part: ``init``, ``out`` and ``--store``."""
-    parser = argparse.ArgumentParser(prog=prog, description=description)
-    parser.add_argument("init", help=f"the dual-system agent checkpoint (kept but the {role})")
-    parser.add_argument("out", help="the checkpoint folder to write (replaced)")
-    parser.add_argument(
-        "--store", required=store_required, help="expert store with the training frames"
-    )
-    return parser
-
-
-def add_frame_training_arguments(
-    parser: argparse.ArgumentParser,
-    part: str,
-    steps: int,
-    batch_size: int,
-    reject_threshold: float,
-    threshold_help: str,
-) -> None:
-    """Add the frame selection and training options (``--first`` to ``--set``) to ``parser``."""
-    parser.add_argument("--first", type=int, default=0, help="first stored episode to read")
-    parser.add_argument("--episodes", type=int, default=None, help="stored episodes to read")
-    parser.add_argument("--stride", type=int, default=8, help="every stride-th frame")
-    parser.add_argument("--eval-store", default=None, help="a store of unseen houses to report on")
-    parser.add_argument("--steps", type=int, default=steps)
-    parser.add_argument("--batch-size", type=int, default=batch_size)
-    parser.add_argument("--lr", type=float, default=2e-3)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument(
-        "--reject-threshold", type=float, default=reject_threshold, help=threshold_help
-    )
-    parser.add_argument("--set", nargs="*", default=[], help=f"{part}.* settings")
-
-
-def train_from_args(
-    args: argparse.Namespace,
-    labels: Sequence[str],
-    read_frames: Callable[..., dict[str, np.ndarray]],
-    train: Callable[..., dict],
-) -> None:
-    """Read the frames ``args`` select with ``read_frames(store, labels, first, count,
-    stride)`` (and those of ``--eval-store``) and ``train`` on them with ``args``' options."""
-    frames = read_frames(args.store, labels, args.first, args.episodes, args.stride)
-    eval_frames = (
-        read_frames(args.eval_store, labels, stride=args.stride) if args.eval_store else None
-    )
-    train(
-        args.init, args.out, frames, labels, steps=args.steps, batch_size=args.batch_size,
-        lr=args.lr, seed=args.seed, settings=args.set, reject_threshold=args.reject_threshold,
-        eval_frames=eval_frames,
     )  # fmt: skip

@@ -3,7 +3,8 @@
 At each validation rank 0 runs the (EMA) policy on ``training.eval_episodes`` fixed ``val``
 episodes (indices 0..N-1, so successive evaluations are comparable) and the other ranks
 wait; the metrics are then broadcast so every rank takes the same checkpoint decision.
-Called by ``maybe_validate`` in ``vla_gr.train``; the rollouts are ``vla_gr.evaluate``'s.
+Called by ``maybe_validate`` in ``vla_gr.train``, which hands in the rollout (the eval
+harness's episode loop): training imports no evaluation code.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Iterable, Mapping
 
 import torch
 
@@ -23,10 +24,17 @@ LOGGED = ("success", "spl", "soft_spl", "collision_rate")
 WORST = (-math.inf, -math.inf)
 
 
-def closed_loop_metrics(model, cfg, dist: DistInfo, amp_context) -> dict[str, float]:
+#: ``(policy, env kwargs, episode indices, device) -> {metric: mean}`` over those episodes.
+Rollout = Callable[[object, dict, Iterable[int], torch.device], Mapping[str, float]]
+
+
+def closed_loop_metrics(
+    model, cfg, dist: DistInfo, amp_context, rollout: Rollout
+) -> dict[str, float]:
     """``val/<metric>`` of ``model`` on ``cfg.training.eval_episodes`` episodes ({} when off).
 
-    ``amp_context`` is a zero-argument callable returning the autocast context to run in.
+    ``amp_context`` is a zero-argument callable returning the autocast context to run in;
+    ``rollout`` runs the episodes and averages their metrics.
     """
     t = cfg.training
     if t.eval_episodes <= 0:
@@ -34,14 +42,12 @@ def closed_loop_metrics(model, cfg, dist: DistInfo, amp_context) -> dict[str, fl
     out: list = [None]
     if dist.is_main:
         from vla_gr.data.collect import env_kwargs_from_config
-        from vla_gr.evaluation.runner import rollout_policy, summarize
 
         env_kwargs = env_kwargs_from_config(cfg, "val", semantic=False)
         env_kwargs["max_episode_steps"] = t.eval_max_steps
         t0 = time.perf_counter()
         with amp_context():
-            infos = rollout_policy(model, env_kwargs, range(t.eval_episodes), dist.device)
-        summary = summarize(infos)
+            summary = rollout(model, env_kwargs, range(t.eval_episodes), dist.device)
         out[0] = {f"val/{k}": float(summary[k]) for k in LOGGED}
         out[0]["val/eval_seconds"] = time.perf_counter() - t0
     if dist.distributed:

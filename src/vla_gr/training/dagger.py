@@ -18,10 +18,8 @@ read actions; a learned S1 would be relabelled by its teacher instead).
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
-import sys
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
@@ -30,7 +28,6 @@ import numpy as np
 from vla_gr.data.collect import make_env, run_expert_episode
 from vla_gr.data.store import EpisodeRecord, EpisodeStore
 from vla_gr.errors import UserError
-from vla_gr.training.command import run_command
 
 log = logging.getLogger(__name__)
 
@@ -134,21 +131,3 @@ def aggregate(run_dir: str | Path, base_store: str | Path, out_store: str | Path
     }
     log.info("DAgger round: %s", summary)
     return summary
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m vla_gr.training.dagger")
-    parser.add_argument("run_dir", help="a vla-gr eval run folder on train episodes")
-    parser.add_argument("base_store", help="the store the agent was trained on")
-    parser.add_argument("out_store", help="the aggregated store to write (must not exist)")
-
-    def work(args: argparse.Namespace) -> None:
-        sys.stdout.write(
-            json.dumps(aggregate(args.run_dir, args.base_store, args.out_store)) + "\n"
-        )
-
-    return run_command(parser, argv, work, limit_threads=False)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -16,9 +16,7 @@ rest of the agent comes from ``init`` and stays fixed; the result is the agent w
 
 from __future__ import annotations
 
-import argparse
 import logging
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -28,7 +26,6 @@ import torch.nn.functional as F
 
 from vla_gr.errors import UserError
 from vla_gr.training.agent_stage import build_agent_from, finish_part
-from vla_gr.training.command import run_command
 
 log = logging.getLogger(__name__)
 
@@ -234,32 +231,3 @@ def train_instruction_reader(
         policy, loaded, config, out, "instruction_reader", summary,
         lambda corpus: reader_accuracy(reader, corpus), held_out,
     )  # fmt: skip
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    prog = "python -m vla_gr.training.instruction_reader"
-    parser = argparse.ArgumentParser(prog=prog, description=__doc__)
-    parser.add_argument("init", help="the dual-system agent checkpoint (kept but the reader)")
-    parser.add_argument("out", help="the checkpoint folder to write (replaced)")
-    parser.add_argument("--count", type=int, default=12000, help="generated instructions")
-    parser.add_argument("--steps", type=int, default=1500)
-    parser.add_argument("--batch-size", type=int, default=256)
-    parser.add_argument("--lr", type=float, default=2e-3)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--eval-count", type=int, default=2000, help="instructions per report")
-    parser.add_argument("--token-dropout", type=float, default=0.0,
-                        help="share of training tokens hidden from the attention")  # fmt: skip
-    parser.add_argument("--set", nargs="*", default=[], help="instruction_reader.* settings")
-
-    def work(args: argparse.Namespace) -> None:
-        train_instruction_reader(
-            args.init, args.out, count=args.count, steps=args.steps,
-            batch_size=args.batch_size, lr=args.lr, seed=args.seed, settings=args.set,
-            eval_count=args.eval_count, token_dropout=args.token_dropout,
-        )  # fmt: skip
-
-    return run_command(parser, argv, work, limit_threads=True)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

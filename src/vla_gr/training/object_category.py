@@ -15,9 +15,7 @@ other.
 
 from __future__ import annotations
 
-import argparse
 import logging
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -26,14 +24,10 @@ import torch
 import torch.nn.functional as F
 
 from vla_gr.training.agent_stage import (
-    add_frame_training_arguments,
-    frame_part_parser,
     labelled_frames,
     part_setting,
     train_frame_part,
-    train_from_args,
 )
-from vla_gr.training.command import run_command
 from vla_gr.training.object_labels import frame_categories
 
 log = logging.getLogger(__name__)
@@ -127,26 +121,8 @@ def train_object_category(
     )  # fmt: skip
 
 
-def _categories(settings: Sequence[str]) -> list[str]:
+def labels(settings: Sequence[str]) -> list[str]:
     """``object_category.categories`` after ``settings`` (the classes frames are labelled in)."""
     from vla_gr.core.grounding import ObjectCategoryConfig
 
     return part_setting(ObjectCategoryConfig, "object_category", "categories", settings)
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    prog = "python -m vla_gr.training.object_category"
-    parser = frame_part_parser(prog, __doc__, "segmenter")
-    add_frame_training_arguments(
-        parser, "object_category", steps=3000, batch_size=64, reject_threshold=0.3,
-        threshold_help="navigator.object_reject_threshold",
-    )  # fmt: skip
-
-    def work(args: argparse.Namespace) -> None:
-        train_from_args(args, _categories(args.set), category_frames, train_object_category)
-
-    return run_command(parser, argv, work, limit_threads=True)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

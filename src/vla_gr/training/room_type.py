@@ -17,9 +17,7 @@ the agent with ``model.room_type.enabled=true`` and the room check on
 
 from __future__ import annotations
 
-import argparse
 import logging
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -27,17 +25,11 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from vla_gr.errors import UserError
 from vla_gr.training.agent_stage import (
-    add_frame_training_arguments,
-    frame_part_parser,
-    graft_part,
     labelled_frames,
     part_setting,
     train_frame_part,
-    train_from_args,
 )
-from vla_gr.training.command import run_command
 
 log = logging.getLogger(__name__)
 
@@ -144,35 +136,8 @@ def train_room_type(
     )  # fmt: skip
 
 
-def _room_types(settings: Sequence[str]) -> list[str]:
+def labels(settings: Sequence[str]) -> list[str]:
     """``room_type.room_types`` after ``settings`` (the classes frames are labelled in)."""
     from vla_gr.core.grounding import RoomTypeConfig
 
     return part_setting(RoomTypeConfig, "room_type", "room_types", settings)
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    prog = "python -m vla_gr.training.room_type"
-    parser = frame_part_parser(prog, __doc__, "classifier", store_required=False)
-    parser.add_argument(
-        "--classifier-from", default=None, help="take this checkpoint's classifier, no training"
-    )
-    add_frame_training_arguments(
-        parser, "room_type", steps=2000, batch_size=256, reject_threshold=0.2,
-        threshold_help="navigator.room_reject_threshold written with the agent",
-    )  # fmt: skip
-
-    def work(args: argparse.Namespace) -> None:
-        if args.classifier_from:
-            threshold = f"navigator.room_reject_threshold={args.reject_threshold}"
-            graft_part(args.init, args.classifier_from, "room_type", args.out, [threshold])
-            return
-        if not args.store:
-            raise UserError("--store is required unless --classifier-from names a checkpoint")
-        train_from_args(args, _room_types(args.set), room_frames, train_room_type)
-
-    return run_command(parser, argv, work, limit_threads=True)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -17,10 +17,8 @@ vectors it reads at inference.
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
-import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -31,7 +29,6 @@ import torch
 from vla_gr.core.dual_system.s1_inputs import PlanMemory
 from vla_gr.errors import UserError
 from vla_gr.training.agent_stage import build_agent_from, write_agent
-from vla_gr.training.command import run_command
 from vla_gr.training.optim import build_optimizer, build_scheduler
 from vla_gr.training.s1_data import load_s1_data
 
@@ -179,28 +176,3 @@ def train_s1(
     write_agent(policy, loaded, config, out, {"s1_training": summary, "s1_steps": steps})
     log.info("wrote %s", out)
     return summary
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m vla_gr.training.s1", description=__doc__)
-    parser.add_argument("init", help="the dual-system agent checkpoint (its S2 is kept)")
-    parser.add_argument("out", help="the checkpoint folder to write (replaced)")
-    parser.add_argument("--data", nargs="+", required=True, help="S1 data folders")
-    parser.add_argument("--steps", type=int, default=3000)
-    parser.add_argument("--batch-size", type=int, default=256)
-    parser.add_argument("--lr", type=float, default=1e-3)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--set", nargs="*", default=[], help="s1.* settings, e.g. s1.dim=64")
-    parser.add_argument("--init-s1", action="store_true", help="start from init's S1 weights")
-
-    def work(args: argparse.Namespace) -> None:
-        train_s1(
-            args.init, args.out, args.data, steps=args.steps, batch_size=args.batch_size,
-            lr=args.lr, seed=args.seed, settings=args.set, init_s1=args.init_s1,
-        )  # fmt: skip
-
-    return run_command(parser, argv, work, limit_threads=True)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -19,11 +19,9 @@ verifies them and refuses parts made for another S1 layout.
 
 from __future__ import annotations
 
-import argparse
 import json
 import logging
 import multiprocessing as mp
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -213,24 +211,3 @@ def load_s1_data(folders: Sequence[str | Path], s1) -> dict[str, np.ndarray]:
     if not part_index:
         raise UserError(f"no S1 data in {list(map(str, folders))}")
     return {k: np.concatenate(v) for k, v in merged.items()}
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m vla_gr.training.s1_data")
-    parser.add_argument("run_dir", help="a vla-gr eval run folder on train episodes")
-    parser.add_argument("checkpoint", help="the agent that made the run (its S2 is replayed)")
-    parser.add_argument("out_dir", help="the S1 data folder to write (new)")
-    parser.add_argument("--workers", type=int, default=1)
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-    try:
-        manifest = relabel_run(args.run_dir, args.checkpoint, args.out_dir, args.workers)
-    except UserError as err:
-        sys.stderr.write(f"{parser.prog}: error: {err}\n")
-        return 2
-    sys.stdout.write(json.dumps(manifest["parts"]) + "\n")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

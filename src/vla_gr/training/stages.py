@@ -1,0 +1,267 @@
+"""The kinds of stage a training recipe is made of (``pipeline.stages[].kind``).
+
+Each kind is ``(stage, cfg, resolved, folder, inputs, services) -> product path``: ``cfg``
+is the stage's validated ``VLAGRConfig`` (the recipe with the stage's overrides),
+``folder`` its output folder, ``inputs`` the products of the stages it names (in order) and
+``services`` the training loop and evaluation harness the app hands in. A kind resumes
+where it can when its folder holds a partial product made with the same settings.
+
+======== ============================================ ==========================
+kind      product                                      inputs
+======== ============================================ ==========================
+collect   ``store.zarr``: expert episodes               -
+train     ``run/checkpoints/best``: a trained agent     store [, init checkpoint]
+rollout   ``rollouts/``: the agent's closed-loop rows   checkpoint
+dagger    ``store.zarr``: a store + the rollouts'       rollout, store
+          states with their true masks
+s1_data   ``data/``: S1 inputs + local-teacher labels   rollout, checkpoint
+s1        ``agent/``: the agent with a learned S1       checkpoint, s1_data...
+room_type ``agent/``: + a room-type classifier          checkpoint, store
+object_   ``agent/``: + an object-category segmenter    checkpoint, store
+category
+instruct- ``agent/``: + an instruction reader           checkpoint
+ion_reader
+graft     ``agent/``: + another agent's ``part``          checkpoint, donor
+source    an existing checkpoint or store (``path``)    -
+export    ``agent/``: the shipping checkpoint           checkpoint
+======== ============================================ ==========================
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import shutil
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from vla_gr.errors import UserError
+
+log = logging.getLogger(__name__)
+
+__all__ = ["STAGES", "Services"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Services:
+    """What the app hands the pipeline: ``train(cfg, resolved) -> summary`` (the training
+    loop) and ``evaluate(cfg) -> metrics`` (the evaluation harness, for rollouts)."""
+
+    train: Callable
+    evaluate: Callable
+
+
+def _inputs(stage, inputs: dict[str, Path], want: int, most: int | None = None) -> list[Path]:
+    """The products of the stage's inputs, in order; StageError-like UserError when there
+    are fewer than ``want`` or more than ``most``."""
+    paths = [inputs[name] for name in stage.inputs]
+    most = want if most is None else most
+    if not want <= len(paths) <= most:
+        count = f"{want}" if want == most else f"{want} to {most}"
+        raise UserError(
+            f"pipeline.stages[{stage.name}] (kind {stage.kind}) reads {count} inputs; "
+            f"inputs={list(stage.inputs)}"
+        )
+    return paths
+
+
+def collect_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
+    """Expert episodes into ``store.zarr`` (``collect.*``); resumes by appending the
+    episodes not yet in the store."""
+    from vla_gr.data.collect import collect
+
+    _inputs(stage, inputs, 0)
+    store = folder / "store.zarr"
+    c = dataclasses.replace(cfg.collect, output=str(store), mode="append")
+    collect(dataclasses.replace(cfg, collect=c))
+    return store
+
+
+def train_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
+    """The training loop (``training.*``) on the input store, starting from the input
+    checkpoint's weights when there is one; resumes from ``run/checkpoints/latest``."""
+    paths = _inputs(stage, inputs, 1, 2)
+    latest = folder / "run" / "checkpoints" / "latest"
+    t = dataclasses.replace(
+        cfg.training,
+        dataset=str(_store_of(paths[0])),
+        if_missing="error",
+        output_dir=str(folder),
+        run_name="run",
+        init_from=str(paths[1]) if len(paths) > 1 else cfg.training.init_from,
+        resume=str(latest) if latest.exists() else None,
+    )
+    resolved = resolved.copy()
+    for key in ("dataset", "if_missing", "output_dir", "run_name", "init_from", "resume"):
+        resolved.training[key] = getattr(t, key)
+    services.train(dataclasses.replace(cfg, training=t), resolved)
+    return (folder / "run" / "checkpoints" / "best").resolve()
+
+
+def _store_of(product: Path) -> Path:
+    """A store product (a ``collect`` or ``dagger`` stage's ``store.zarr``)."""
+    if not product.is_dir() or product.suffix != ".zarr":
+        raise UserError(f"{product} is not an episode store (a collect or dagger stage's)")
+    return product
+
+
+def rollout_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
+    """The input agent, with the stage's ``model_overrides``, closed-loop on ``eval.*``'s
+    episodes (``train`` episodes for DAgger and S1 data); resumes the rows already written."""
+    (checkpoint,) = _inputs(stage, inputs, 1)
+    out = folder / "rollouts"
+    e = dataclasses.replace(
+        cfg.eval,
+        agent="checkpoint",
+        agents=[],
+        checkpoint=str(checkpoint),
+        model_overrides=list(stage.model_overrides),
+        output_dir=str(out),
+        gif_successes=0,
+        gif_per_cause=0,
+    )
+    metrics = services.evaluate(dataclasses.replace(cfg, eval=e))
+    log.info("stage %s: SR %.3f on %d %s episodes", stage.name, metrics["metrics"]["success"],
+             metrics["metrics"]["episodes"], e.split)  # fmt: skip
+    return out
+
+
+def dagger_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
+    """A copy of the input store with the rollouts' states relabelled by the world (their
+    true goal and distractor masks) appended."""
+    from vla_gr.training.dagger import aggregate
+
+    rollouts, base = _inputs(stage, inputs, 2)
+    store = folder / "store.zarr"
+    if store.exists():  # an interrupted copy or append: start the aggregate again
+        shutil.rmtree(store)
+    aggregate(rollouts, _store_of(base), store)
+    return store
+
+
+def s1_data_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
+    """S1's inputs and the local teacher's labels at every state of the rollouts (made with
+    the input checkpoint's agent)."""
+    from vla_gr.training.s1_data import relabel_run
+
+    rollouts, checkpoint = _inputs(stage, inputs, 2)
+    data = folder / "data"
+    if data.exists():  # an interrupted relabelling: start it again
+        shutil.rmtree(data)
+    relabel_run(rollouts, checkpoint, data, workers=cfg.training.s1.workers)
+    return data
+
+
+def s1_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
+    """The learned S1 (``training.s1.*``) trained on the S1 data inputs, written with the
+    input agent's S2 as a new agent."""
+    from vla_gr.training.s1 import train_s1
+
+    checkpoint, *data = _inputs(stage, inputs, 2, 99)
+    s = cfg.training.s1
+    agent = folder / "agent"
+    train_s1(
+        checkpoint, agent, data, steps=s.steps, batch_size=s.batch_size, lr=s.lr,
+        seed=cfg.seed, settings=s.settings,
+    )  # fmt: skip
+    return agent
+
+
+def _frame_part_stage(part: str, stage, cfg, inputs) -> Path:
+    """Train ``model.<part>`` (``training.<part>``) of the input agent on the input store's
+    frames; the product is the whole agent with it."""
+    from vla_gr.training import object_category, room_type
+
+    checkpoint, store = _inputs(stage, inputs, 2)
+    p = getattr(cfg.training, part)
+    if part == "room_type":
+        labels, read, train = room_type.labels(p.settings), room_type.room_frames, None
+        train = room_type.train_room_type
+        extra = {}
+    else:
+        labels, read = object_category.labels(p.settings), object_category.category_frames
+        train = object_category.train_object_category
+        extra = {"background_weight": p.background_weight}
+    frames = read(_store_of(store), labels, p.first, p.episodes, p.stride)
+    agent = inputs["__folder__"] / "agent"
+    train(
+        checkpoint, agent, frames, labels, steps=p.steps, batch_size=p.batch_size, lr=p.lr,
+        seed=cfg.seed, settings=p.settings, reject_threshold=p.reject_threshold, **extra,
+    )  # fmt: skip
+    return agent
+
+
+def room_type_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
+    """The room-type classifier (S2's room check) trained on the store's frames."""
+    return _frame_part_stage("room_type", stage, cfg, {**inputs, "__folder__": folder})
+
+
+def object_category_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
+    """The object-category segmenter (S2's object checks) trained on the store's frames."""
+    return _frame_part_stage("object_category", stage, cfg, {**inputs, "__folder__": folder})
+
+
+def instruction_reader_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
+    """The instruction reader (``training.instruction_reader``) trained on generated
+    instructions, written with the input agent."""
+    from vla_gr.training.instruction_reader import train_instruction_reader
+
+    (checkpoint,) = _inputs(stage, inputs, 1)
+    r = cfg.training.instruction_reader
+    agent = folder / "agent"
+    train_instruction_reader(
+        checkpoint, agent, count=r.count, steps=r.steps, batch_size=r.batch_size, lr=r.lr,
+        seed=cfg.seed, settings=r.settings, eval_count=r.eval_count,
+        token_dropout=r.token_dropout,
+    )  # fmt: skip
+    return agent
+
+
+def graft_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
+    """The input agent with model part ``part`` and its weights taken from the donor (the
+    second input), with the stage's ``model_overrides`` (e.g. the part's threshold)."""
+    from vla_gr.training.agent_stage import graft_part
+
+    checkpoint, donor = _inputs(stage, inputs, 2)
+    return graft_part(checkpoint, donor, stage.part, folder / "agent", stage.model_overrides)
+
+
+def source_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
+    """An existing checkpoint or store (``path``) as a stage's product, e.g. the shipped
+    agent an ablation starts from; its digest decides whether later stages rerun."""
+    _inputs(stage, inputs, 0)
+    path = Path(stage.path)
+    if not path.exists():
+        raise UserError(f"pipeline.stages[{stage.name}].path={stage.path} does not exist")
+    return path
+
+
+def export_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
+    """The input agent as a shipping checkpoint with the stage's inference settings."""
+    from vla_gr.policy.export import export_pretrained
+
+    (checkpoint,) = _inputs(stage, inputs, 1)
+    return export_pretrained(checkpoint, folder / "agent", list(stage.model_overrides))
+
+
+STAGES: dict[str, Callable[..., Path]] = {
+    "collect": collect_stage,
+    "train": train_stage,
+    "rollout": rollout_stage,
+    "dagger": dagger_stage,
+    "s1_data": s1_data_stage,
+    "s1": s1_stage,
+    "export": export_stage,
+    "room_type": room_type_stage,
+    "object_category": object_category_stage,
+    "instruction_reader": instruction_reader_stage,
+    "source": source_stage,
+    "graft": graft_stage,
+}
+
+
+def check_kinds(kinds: Sequence[str]) -> None:
+    """Every kind the schema names has an implementation (a test asserts it)."""
+    missing = sorted(set(kinds) - set(STAGES))
+    if missing:
+        raise RuntimeError(f"stage kinds without an implementation: {missing}")
