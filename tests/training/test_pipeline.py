@@ -10,6 +10,7 @@ import pytest
 
 from vla_gr.configs import ConfigError, load_config
 from vla_gr.configs.pipeline_schema import STAGE_KINDS
+from vla_gr.data.store import EpisodeStore
 from vla_gr.evaluation.harness import evaluate
 from vla_gr.policy import VLAGRPolicy, load_policy
 from vla_gr.train import train
@@ -35,8 +36,12 @@ def test_recipe_runs_every_stage_then_skips_reruns_and_refuses(tmp_path, caplog)
     out = tmp_path / "pipe"
     first = _run(out)
     assert list(first) == [
-        "expert", "goal_head", "rollouts", "dagger", "finetune", "s1_data", "s1", "shipped"
+        "expert", "more", "goal_head", "rollouts", "dagger", "finetune", "s1_data", "s1",
+        "shipped",
     ]  # fmt: skip
+    more = EpisodeStore.open(first["more"]["product"])
+    assert sorted(more.episode_indices.tolist()) == [0, 1, 20]  # the copy + one appended
+    assert first["finetune"]["product"].endswith("step_00000002")  # use: latest
     shipped = load_policy(first["shipped"]["product"])
     assert type(shipped) is VLAGRPolicy and shipped.config.s1.kind == "pure_pursuit"
     for name, record in first.items():
@@ -55,7 +60,7 @@ def test_recipe_runs_every_stage_then_skips_reruns_and_refuses(tmp_path, caplog)
 
     # a setting of the fine-tune changes: it and every stage after it that reads it rerun
     caplog.clear()
-    changed = _run(out, "pipeline.stages.4.overrides=['training.lr=0.0005']")
+    changed = _run(out, "pipeline.stages.5.overrides=['training.lr=0.0005']")
     rerun = [n for n in first if changed[n]["attempts"] != first[n]["attempts"]]
     assert rerun == ["finetune", "s1", "shipped"]
     assert "finetune: settings changed" in caplog.text
@@ -82,7 +87,7 @@ def test_an_interrupted_stage_runs_again_and_resumes(tmp_path, caplog):
 
 def test_a_bad_recipe_fails_before_any_work_naming_the_stage(tmp_path):
     with pytest.raises(ConfigError, match=r"pipeline.stages\[goal_head\].inputs names 'nope'"):
-        load_config("recipe_debug", ["pipeline.stages.1.inputs=[nope]"])
+        load_config("recipe_debug", ["pipeline.stages.2.inputs=[nope]"])
     with pytest.raises(ConfigError, match=r"pipeline.stages\[\w+\].kind"):
         load_config("recipe_debug", ["pipeline.stages.0.kind=bake"])
     with pytest.raises(StageError, match=r"pipeline.stages\[expert\].overrides \(collect.nope\)"):

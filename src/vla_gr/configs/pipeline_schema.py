@@ -15,7 +15,7 @@ from vla_gr.validation import check_choice
 
 #: stage kind -> (what it makes, the inputs it reads in order; "*" = one or more)
 STAGE_KINDS: dict[str, tuple[str, tuple[str, ...]]] = {
-    "collect": ("an expert episode store (collect.*, expert.*)", ()),
+    "collect": ("an expert episode store (collect.*, expert.*)", ("store?",)),
     "train": ("a trained agent (training.*, model.*)", ("store", "init checkpoint?")),
     "rollout": ("closed-loop episodes of an agent (eval.*)", ("checkpoint",)),
     "dagger": ("a store + the rollouts' states with their true masks", ("rollout", "store")),
@@ -49,6 +49,7 @@ class StageConfig:
     model_overrides: list[str] = field(default_factory=list)
     path: str | None = None  # kind source: the existing checkpoint or store
     part: str | None = None  # kind graft: the model part taken from the donor, e.g. room_type
+    use: str = "best"  # kind train: the run's checkpoint that is the product: best | latest
 
     def __post_init__(self) -> None:
         if not self.name or not self.name.replace("_", "").replace("-", "").isalnum():
@@ -57,6 +58,7 @@ class StageConfig:
                 "digits, '_' or '-'): it names the stage's output folder"
             )
         check_choice(f"pipeline.stages[{self.name}].kind", self.kind, tuple(STAGE_KINDS))
+        check_choice(f"pipeline.stages[{self.name}].use", self.use, ("best", "latest"))
         if (self.kind == "source") != (self.path is not None):
             raise ValueError(
                 f"pipeline.stages[{self.name}]: path is given for kind source and only then"

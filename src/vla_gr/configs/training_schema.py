@@ -25,6 +25,7 @@ class S1StageConfig:
     processes) and ``s1`` stage (:mod:`vla_gr.training.stages`)."""
 
     workers: int = 2
+    init_s1: bool = False  # start from the input agent's S1 weights instead of fresh ones
     steps: int = 3000
     batch_size: int = 256
     lr: float = 1e-3

@@ -9,8 +9,9 @@ where it can when its folder holds a partial product made with the same settings
 ======== ============================================ ==========================
 kind      product                                      inputs
 ======== ============================================ ==========================
-collect   ``store.zarr``: expert episodes               -
-train     ``run/checkpoints/best``: a trained agent     store [, init checkpoint]
+collect   ``store.zarr``: expert episodes (appended to   [store]
+          a copy of the input store)
+train     ``run/checkpoints/<use>``: a trained agent    store [, init checkpoint]
 rollout   ``rollouts/``: the agent's closed-loop rows   checkpoint
 dagger    ``store.zarr``: a store + the rollouts'       rollout, store
           states with their true masks
@@ -66,12 +67,17 @@ def _inputs(stage, inputs: dict[str, Path], want: int, most: int | None = None) 
 
 
 def collect_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
-    """Expert episodes into ``store.zarr`` (``collect.*``); resumes by appending the
-    episodes not yet in the store."""
+    """Expert episodes into ``store.zarr`` (``collect.*``), after a copy of the input store
+    when there is one; resumes by appending the episodes not yet in the store."""
     from vla_gr.data.collect import collect
+    from vla_gr.data.verify import copy_store
 
-    _inputs(stage, inputs, 0)
+    bases = _inputs(stage, inputs, 0, 1)
     store = folder / "store.zarr"
+    copied = folder / "copied"  # marks a complete copy of the input store
+    if bases and not copied.exists():
+        copy_store(_store_of(bases[0]), store, overwrite=True)
+        copied.touch()
     c = dataclasses.replace(cfg.collect, output=str(store), mode="append")
     collect(dataclasses.replace(cfg, collect=c))
     return store
@@ -95,7 +101,7 @@ def train_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
     for key in ("dataset", "if_missing", "output_dir", "run_name", "init_from", "resume"):
         resolved.training[key] = getattr(t, key)
     services.train(dataclasses.replace(cfg, training=t), resolved)
-    return (folder / "run" / "checkpoints" / "best").resolve()
+    return (folder / "run" / "checkpoints" / stage.use).resolve()
 
 
 def _store_of(product: Path) -> Path:
@@ -162,7 +168,7 @@ def s1_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
     agent = folder / "agent"
     train_s1(
         checkpoint, agent, data, steps=s.steps, batch_size=s.batch_size, lr=s.lr,
-        seed=cfg.seed, settings=s.settings,
+        seed=cfg.seed, settings=s.settings, init_s1=s.init_s1,
     )  # fmt: skip
     return agent
 
