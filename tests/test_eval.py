@@ -288,7 +288,7 @@ def test_a_run_on_a_checkpoint_rewritten_in_place_is_not_resumed(tmp_path, check
     first = evaluate(cfg_for(out, *args))
     assert first["checkpoint_digest"] and len(first["checkpoint_digest"]) == 64
     assert evaluate(cfg_for(out, *args))["checkpoint_digest"] == first["checkpoint_digest"]
-    export_pretrained(checkpoint, ckpt, ["navigator.confirm_ticks=4"])  # same path, new agent
+    export_pretrained(checkpoint, ckpt, ["navigator.confirmation.ticks=4"])  # same path, new agent
     with pytest.raises(EvalInputError, match="checkpoint_digest"):
         evaluate(cfg_for(out, *args))
 

@@ -83,6 +83,11 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="write model keys the checkpoint lacks with this version's defaults",
     )
+    export.add_argument(
+        "--rename-keys",
+        action="store_true",
+        help="write renamed model keys by their new names (values unchanged), drop removed ones",
+    )
     add_verbose_argument(export)
     return parser
 
@@ -106,11 +111,22 @@ def copy_store_command(src: str, dst: str, skip_damaged: bool, overwrite: bool) 
     return 0
 
 
-def export_command(src: str, dst: str, overrides: Sequence[str], fill_missing: bool) -> int:
-    """Export checkpoint ``src`` to ``dst``; prints the folder written; 0 on success."""
+def export_command(
+    src: str, dst: str, overrides: Sequence[str], fill_missing: bool, rename_keys: bool = False
+) -> int:
+    """Export checkpoint ``src`` to ``dst``; prints the folder written; 0 on success. A
+    checkpoint that does not load (an old key name, a missing file) is the user's to fix: one
+    line, no traceback."""
+    from vla_gr.checkpoint import CheckpointError
+    from vla_gr.errors import UserError
     from vla_gr.policy.export import export_pretrained
 
-    out = export_pretrained(src, dst, overrides, fill_missing=fill_missing)
+    try:
+        out = export_pretrained(
+            src, dst, overrides, fill_missing=fill_missing, rename_keys=rename_keys
+        )
+    except CheckpointError as err:
+        raise UserError(str(err)) from err
     sys.stdout.write(f"{out}\n")
     return 0
 
@@ -141,6 +157,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             args.dst,
             args.overrides,
             args.fill_missing,
+            args.rename_keys,
             verbose=args.verbose,
         )
     func = _resolve(COMMANDS[args.command][0])

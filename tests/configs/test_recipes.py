@@ -48,7 +48,7 @@ def test_recipe_composes_and_components_follow_the_layout(name):
     assert m.image_size == cfg.env.image_size
     assert (m.head.action_dim, m.head.horizon) == (m.action_dim, m.horizon)
     assert m.head.context_dim == m.encoders.dim
-    assert m.dual_system.action_dim == m.action_dim
+    assert m.schedule.planning_frequency_hz <= m.schedule.control_frequency_hz
     head = DiffusionPolicy(config=m.head)
     assert head.context_dim == m.encoders.dim and head.default_sampler is not None
 
@@ -81,6 +81,19 @@ def test_component_fields_follow_the_model_and_contradictions_fail():
     with pytest.raises(ValueError, match=r"model\.head\.horizon=5 contradicts model\.horizon"):
         load_config("config_debug", ["model.head.horizon=5"])
     assert set(FOLLOWS) >= {("head", "action_dim"), ("head", "horizon"), ("head", "context_dim")}
+
+
+def test_the_agents_schedule_is_its_own_section_apart_from_the_seeds_block():
+    _, cfg = load_config("config_cpu")
+    schedule = cfg.model.schedule
+    assert schedule.control_frequency_hz == cfg.env.control_hz  # S1 at the world's rate
+    assert schedule.planning_frequency_hz == 3.3
+    # the seed's latent DualSystemArchitecture, which no agent runs, is no model section
+    assert "dual_system" not in {f.name for f in dataclasses.fields(ModelConfig)}
+    with pytest.raises(ValueError, match=r"model\.schedule\.planning_frequency_hz"):
+        load_config("config_debug", ["model.schedule.planning_frequency_hz=0"])
+    with pytest.raises(ValueError, match=r"DualSystemConfig\.planning_frequency_hz"):
+        DualSystemConfig(planning_frequency_hz=0.0)
 
 
 def test_agent_sensor_settings_follow_the_world():

@@ -54,7 +54,7 @@ def write_checkpoint(folder: Path, *overrides: str) -> str:
 def dual(tmp_path_factory) -> str:
     """A dual system with a learned S1 and S2 every 4 control steps (config_debug: 10)."""
     tmp = tmp_path_factory.mktemp("dual")
-    rate = "model.dual_system.planning_frequency_hz=5"
+    rate = "model.schedule.planning_frequency_hz=5"
     return write_checkpoint(tmp, "model.agent=dual_system", "model.s1.kind=learned", rate)
 
 
@@ -106,14 +106,16 @@ def test_a_variants_overrides_reach_its_policy(dual):
 def test_true_mask_on_a_checkpoint_uses_its_dual_system(dual, tmp_path):
     cfg = eval_cfg(
         f"checkpoint={dual}",
-        ceiling=VariantConfig(agent="true_mask", model_overrides=["navigator.confirm_ticks=5"]),
+        ceiling=VariantConfig(
+            agent="true_mask", model_overrides=["navigator.confirmation.ticks=5"]
+        ),
         ceiling_pp=VariantConfig(agent="true_mask", model_overrides=["s1.kind=pure_pursuit"]),
     )
     ceiling = make_agent("ceiling", cfg, None).policy
     system = ceiling.dual_system
     assert isinstance(ceiling.perception, TrueMaskPerception)  # the wiring is the checkpoint's
     assert isinstance(system.follower, LearnedFollower) and system.plan_every == 4
-    assert system.navigator.config.confirm_ticks == 5
+    assert system.navigator.config.confirmation.ticks == 5
     loaded = VLAGRPolicy.from_pretrained(dual).s1.state_dict()
     for key, value in system.follower.policy.state_dict().items():
         assert torch.equal(value, loaded[key])  # the checkpoint's S1
@@ -131,7 +133,8 @@ def test_true_mask_on_a_checkpoint_uses_its_dual_system(dual, tmp_path):
 def test_true_category_runs_the_checkpoints_checks_and_true_mask_needs_none(tmp_path):
     room = write_checkpoint(
         tmp_path, "model.agent=dual_system", "model.room_type.enabled=true",
-        "model.navigator.room_reject_threshold=0.2", "model.object_category.enabled=true",
+        "model.navigator.goal_checks.room_reject_threshold=0.2",
+        "model.object_category.enabled=true",
     )  # fmt: skip
     world = Namespace(unwrapped=Namespace())
     policy = true_category_agent(eval_cfg(f"checkpoint={room}"), world).policy

@@ -105,7 +105,7 @@ def _obs(pose=(0.0, 0.0, 0.0)) -> dict:
 def test_s2_runs_every_plan_every_steps_and_s1_every_step():
     # 10 Hz control, 10/3 Hz planning -> an S2 tick every 3 control steps
     model = _model(
-        "model.dual_system.control_frequency_hz=10", "model.dual_system.planning_frequency_hz=3.3"
+        "model.schedule.control_frequency_hz=10", "model.schedule.planning_frequency_hz=3.3"
     )
     system = model.dual_system
     assert system.plan_every == 3
@@ -135,7 +135,7 @@ def test_s2_runs_every_plan_every_steps_and_s1_every_step():
 
 def test_s1_acts_on_the_latest_plan_between_ticks():
     model = _model(
-        "model.dual_system.control_frequency_hz=10", "model.dual_system.planning_frequency_hz=5"
+        "model.schedule.control_frequency_hz=10", "model.schedule.planning_frequency_hz=5"
     )
     system = model.dual_system  # plan_every 2
     plans = iter(
@@ -166,8 +166,8 @@ LEARNED_S1 = [
 
 def test_learned_s1_reads_the_latest_plan_and_s2_runs_every_plan_every_steps():
     model = _model(
-        "model.dual_system.control_frequency_hz=10",
-        "model.dual_system.planning_frequency_hz=3.3",
+        "model.schedule.control_frequency_hz=10",
+        "model.schedule.planning_frequency_hz=3.3",
         *LEARNED_S1,
     )
     system = model.dual_system
@@ -339,10 +339,10 @@ def _count_calls(module) -> list:
 
 def test_the_room_check_is_one_field_of_the_tick_percept_and_reaches_the_navigator():
     model = _model(
-        "model.dual_system.control_frequency_hz=10",
-        "model.dual_system.planning_frequency_hz=3.3",
+        "model.schedule.control_frequency_hz=10",
+        "model.schedule.planning_frequency_hz=3.3",
         "model.room_type.enabled=true",
-        "model.navigator.room_reject_threshold=0.5",
+        "model.navigator.goal_checks.room_reject_threshold=0.5",
     )
     system, perception = model.dual_system, model.perception
     assert perception.room_type is model.room_type  # the policy's classifier is S2's check
@@ -371,10 +371,10 @@ def test_the_room_check_is_one_field_of_the_tick_percept_and_reaches_the_navigat
 
 def test_the_object_checks_read_the_ticks_likelihood_and_reach_the_navigator():
     model = _model(
-        "model.dual_system.control_frequency_hz=10",
-        "model.dual_system.planning_frequency_hz=3.3",
+        "model.schedule.control_frequency_hz=10",
+        "model.schedule.planning_frequency_hz=3.3",
         "model.object_category.enabled=true",
-        "model.navigator.object_reject_threshold=0.5",
+        "model.navigator.goal_checks.object_reject_threshold=0.5",
     )
     system, perception = model.dual_system, model.perception
     assert perception.object_category is model.object_category  # the policy's segmenter

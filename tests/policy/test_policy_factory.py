@@ -48,6 +48,51 @@ def test_an_unknown_model_key_fails_naming_it(tmp_path):
         load_policy(_rewritten(tmp_path, add))
 
 
+def test_a_checkpoint_with_an_old_key_fails_naming_the_new_one(tmp_path):
+    def old_name(config):
+        config.model.navigator.confirm_ticks = config.model.navigator.confirmation.pop("ticks")
+
+    with pytest.raises(CheckpointError) as err:
+        load_policy(_rewritten(tmp_path / "renamed", old_name))
+    message = str(err.value)
+    assert "\n" not in message
+    assert "model.navigator.confirm_ticks was renamed model.navigator.confirmation.ticks" in message
+    assert "--rename-keys" in message
+
+    def seed_block(config):
+        config.model.dual_system = {"visual_dim": 512}
+
+    with pytest.raises(CheckpointError, match=r"model\.dual_system\.visual_dim was removed"):
+        load_policy(_rewritten(tmp_path / "removed", seed_block))
+
+
+@pytest.mark.parametrize(
+    "override, new",
+    [
+        ("navigator.confirm_ticks=3", "navigator.confirmation.ticks"),
+        ("navigator.local_planner=true", "navigator.local_planner.enabled"),
+        ("navigator.pursuit_lookahead=0.6", "pursuit.lookahead"),
+        ("dual_system.planning_frequency_hz=5", "schedule.planning_frequency_hz"),
+    ],
+)
+def test_an_override_with_an_old_key_fails_naming_the_new_one(override, new):
+    from vla_gr.configs import ConfigError
+
+    with pytest.raises(ConfigError, match=rf"{override.split('=')[0]} was renamed {new}$"):
+        load_policy(TINY, overrides=[override])
+
+
+def test_every_renamed_key_names_a_key_of_this_version():
+    from vla_gr.configs.model_schema import ModelConfig
+
+    schema = factory._leaf_keys(OmegaConf.to_container(OmegaConf.structured(ModelConfig)))
+    assert set(factory.RENAMED_KEYS.values()) <= schema
+    assert not (set(factory.RENAMED_KEYS) | set(factory.REMOVED_KEYS)) & schema
+    assert all(new.startswith(factory.INFERENCE_SETTINGS) for new in (
+        factory.RENAMED_KEYS[f"navigator.{k}"] for k in ("confirm_ticks", "local_planner")
+    ))  # fmt: skip
+
+
 def test_a_renamed_key_names_its_new_name(tmp_path, monkeypatch):
     def rename(config):
         config.model.head.denoising_steps = config.model.head.pop("num_inference_steps")

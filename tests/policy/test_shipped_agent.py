@@ -23,11 +23,11 @@ def test_shipped_checkpoint_is_the_dual_system_and_small():
     assert type(policy) is VLAGRPolicy and policy.dual_system.plan_every == 3
     # S2's room check is on: a trained room-type classifier and a rejection threshold
     assert policy.room_type is not None and policy.perception.room_type is policy.room_type
-    assert 0.0 < policy.config.navigator.room_reject_threshold < 0.5
+    assert 0.0 < policy.config.navigator.goal_checks.room_reject_threshold < 0.5
     # and its object checks: a trained segmenter, the category threshold, the relation distance
     assert policy.object_category is not None
     assert policy.perception.object_category is policy.object_category
-    assert 0.0 < policy.config.navigator.object_reject_threshold < 0.5
+    assert 0.0 < policy.config.navigator.goal_checks.object_reject_threshold < 0.5
     size = sum(f.stat().st_size for f in SHIPPED.rglob("*") if f.is_file())
     assert size <= 20 * 2**20
 
@@ -62,8 +62,8 @@ def test_inference_settings_can_change_on_load_and_export(tmp_path):
     from vla_gr.configs import ConfigError
     from vla_gr.policy.export import export_pretrained
 
-    policy = VLAGRPolicy.from_pretrained(SHIPPED, overrides=["navigator.confirm_ticks=4"])
-    assert policy.dual_system.navigator.config.confirm_ticks == 4
+    policy = VLAGRPolicy.from_pretrained(SHIPPED, overrides=["navigator.confirmation.ticks=4"])
+    assert policy.dual_system.navigator.config.confirmation.ticks == 4
     with pytest.raises(ConfigError, match="settings no weight depends on"):
         VLAGRPolicy.from_pretrained(SHIPPED, overrides=["goal_head.stem_channels=8"])
     out = export_pretrained(SHIPPED, tmp_path / "exported", ["pursuit.lookahead=0.8"])
@@ -74,13 +74,13 @@ def test_inference_settings_can_change_on_load_and_export(tmp_path):
     assert again.dual_system.follower.config.lookahead == 0.8
     earlier = read_checkpoint(SHIPPED).state.get("export_overrides", [])
     (out / "eval_results.md").write_text("measured")
-    export_pretrained(out, out, ["navigator.confirm_ticks=3"])  # in place: the record grows
+    export_pretrained(out, out, ["navigator.confirmation.ticks=3"])  # in place: the record grows
     assert (out / "eval_results.md").read_text() == "measured"  # the folder's own file stays
     state = read_checkpoint(out).state
     assert state["export_overrides"] == [
         *earlier,
         "pursuit.lookahead=0.8",
-        "navigator.confirm_ticks=3",
+        "navigator.confirmation.ticks=3",
     ]
     assert state["exported_from"] == str(SHIPPED)
     for (name, a), (_, b) in zip(policy.state_dict().items(), again.state_dict().items()):

@@ -91,7 +91,10 @@ def test_trained_segmenter_is_written_with_the_object_check_and_the_rest_untouch
     assert summary["best_val_mean_iou"] == max(r["mean_iou"] for r in summary["history"])
     written = read_checkpoint(out)
     model = OmegaConf.create(written.config_yaml).model
-    assert model.object_category.enabled and model.navigator.object_reject_threshold == 0.35
+    assert (
+        model.object_category.enabled
+        and model.navigator.goal_checks.object_reject_threshold == 0.35
+    )
     init = read_checkpoint(plain).model
     for name, value in init.items():
         assert torch.equal(written.model[name], value), name  # the rest bit for bit

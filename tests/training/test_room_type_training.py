@@ -86,7 +86,7 @@ def test_trained_classifier_is_written_with_the_room_check_and_the_rest_untouche
     assert summary["eval"]["frames"] == len(frames["label"])
     written = read_checkpoint(out)
     model = OmegaConf.create(written.config_yaml).model
-    assert model.room_type.enabled and model.navigator.room_reject_threshold == 0.3
+    assert model.room_type.enabled and model.navigator.goal_checks.room_reject_threshold == 0.3
     init = read_checkpoint(plain).model
     for name, value in init.items():
         assert torch.equal(written.model[name], value), name  # the rest bit for bit
@@ -117,13 +117,15 @@ def test_trained_classifier_is_written_with_the_room_check_and_the_rest_untouche
     assert room_match(VLAGRPolicy.from_pretrained(plain), kitchen_obs) == 1.0
     # the classifier grafted onto an agent (a graft stage): its weights, the rest the agent's
     grafted = tmp_path / "grafted"
-    graft_part(plain, out, "room_type", grafted, ["navigator.room_reject_threshold=0.4"])
+    graft_part(
+        plain, out, "room_type", grafted, ["navigator.goal_checks.room_reject_threshold=0.4"]
+    )
     again = read_checkpoint(grafted)
     assert again.model.keys() == written.model.keys()
     for name, value in written.model.items():
         assert torch.equal(again.model[name], value), name
     model = OmegaConf.create(again.config_yaml).model
-    assert model.room_type.enabled and model.navigator.room_reject_threshold == 0.4
+    assert model.room_type.enabled and model.navigator.goal_checks.room_reject_threshold == 0.4
     with pytest.raises(UserError, match="holds no room_type weights"):
         graft_part(plain, plain, "room_type", tmp_path / "no")  # a donor without one
 

@@ -3,11 +3,14 @@
 Nests one config per component; each lives beside its component in ``vla_gr.core``
 (``model.encoders``: :mod:`vla_gr.core.encoders.config`, ``model.head``:
 :mod:`vla_gr.core.diffusion_policy.config`, ``model.gr_field``:
-:mod:`vla_gr.core.gr_field.config`, ``model.dual_system``:
-:mod:`vla_gr.core.dual_system.config`, ``model.goal_head``, ``model.grounding``,
+:mod:`vla_gr.core.gr_field.config`, ``model.navigator``:
+:mod:`vla_gr.core.gr_field.navigator_config` (one section per concern), ``model.schedule``
+and ``model.s1``: :mod:`vla_gr.core.dual_system.config`, ``model.pursuit``:
+:mod:`vla_gr.core.dual_system.pure_pursuit`, ``model.goal_head``, ``model.grounding``,
 ``model.room_type``, ``model.object_category``, ``model.instruction_reader`` and
-``model.instruction_lexicon``:
-:mod:`vla_gr.core.grounding`), so the defaults are written once.
+``model.instruction_lexicon``: :mod:`vla_gr.core.grounding`), so the defaults are written once.
+The seed's latent ``DualSystemArchitecture`` (:class:`~vla_gr.core.dual_system.DualSystemConfig`)
+is a building block no agent runs: it has no section here.
 
 ``model.agent`` picks what ``VLAGRPolicy`` builds: ``end_to_end`` (encoders -> fusion ->
 action head) or ``dual_system`` (S2: the goal head and the GR field; S1: the controller).
@@ -18,7 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 from vla_gr.core.diffusion_policy.config import HeadConfig
-from vla_gr.core.dual_system.config import DualSystemConfig, S1Config
+from vla_gr.core.dual_system.config import S1Config, ScheduleConfig
 from vla_gr.core.dual_system.pure_pursuit import PursuitConfig
 from vla_gr.core.encoders.config import EncodersConfig
 from vla_gr.core.gr_field.config import GRFieldConfig
@@ -45,7 +48,6 @@ FOLLOWS = {
     ("head", "action_dim"): "action_dim",
     ("head", "horizon"): "horizon",
     ("head", "context_dim"): "encoders.dim",
-    ("dual_system", "action_dim"): "action_dim",
     ("instruction_reader", "categories"): "object_category.categories",
     ("instruction_reader", "room_types"): "room_type.room_types",
     ("instruction_lexicon", "categories"): "object_category.categories",
@@ -85,14 +87,12 @@ class ModelConfig:
     """The agent: observation layout, one config per component, freezing and PEFT.
 
     The fields in ``FOLLOWS`` (``head.action_dim``, ``head.horizon``, ``head.context_dim``,
-    ``dual_system.action_dim``, ``categories`` / ``room_types`` of ``instruction_reader`` and
-    ``instruction_lexicon``) follow the model's keys (set those); setting them to something
-    else fails.
+    ``categories`` / ``room_types`` of ``instruction_reader`` and ``instruction_lexicon``)
+    follow the model's keys (set those); setting them to something else fails.
     ``model.agent=dual_system`` composes ``goal_head`` (S2's grounding), ``navigator`` on
     ``gr_field`` (S2's plan) and ``s1`` (the learned S1; ``pursuit`` when
-    ``s1.kind=pure_pursuit``), scheduled by ``dual_system``'s
-    ``planning_frequency_hz`` / ``control_frequency_hz``; the end-to-end agent uses
-    ``encoders`` and ``head``.
+    ``s1.kind=pure_pursuit``), scheduled by ``schedule``'s ``planning_frequency_hz`` /
+    ``control_frequency_hz``; the end-to-end agent uses ``encoders`` and ``head``.
     """
 
     # Observation / action layout (LeRobot names), shared with the training windows.
@@ -105,7 +105,6 @@ class ModelConfig:
     encoders: EncodersConfig = field(default_factory=EncodersConfig)
     head: HeadConfig = field(default_factory=HeadConfig)
     gr_field: GRFieldConfig = field(default_factory=GRFieldConfig)
-    dual_system: DualSystemConfig = field(default_factory=DualSystemConfig)
     goal_head: GoalHeadConfig = field(default_factory=GoalHeadConfig)  # S2's grounding
     grounding: GroundingConfig = field(default_factory=GroundingConfig)  # its loss, metrics
     room_type: RoomTypeConfig = field(default_factory=RoomTypeConfig)  # S2's room check
@@ -119,6 +118,7 @@ class ModelConfig:
         default_factory=InstructionLexiconConfig
     )  # non-template wording said again in template words, before S2 reads it
     navigator: NavigatorConfig = field(default_factory=NavigatorConfig)  # S2's behaviour
+    schedule: ScheduleConfig = field(default_factory=ScheduleConfig)  # S2 and S1 rates
     pursuit: PursuitConfig = field(default_factory=PursuitConfig)  # S1 ablation: follower
     s1: S1Config = field(default_factory=S1Config)  # S1: the learned controller
     freeze: list[str] = field(default_factory=list)  # submodules whose weights stay fixed

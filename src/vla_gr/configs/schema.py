@@ -140,7 +140,7 @@ class EvalConfig:
     checkpoint: str | None = None  # for agent=checkpoint: <run>/checkpoints/best
     # named agents: a registered agent + checkpoint + overrides (agent=<name>, agents=[...])
     variants: dict[str, VariantConfig] = field(default_factory=dict)
-    # inference-only settings changed on the loaded checkpoint, e.g. [navigator.confirm_ticks=3]
+    # inference-only settings changed on the loaded checkpoint, e.g. [navigator.tight.steps=90]
     model_overrides: list[str] = field(default_factory=list)
     split: str = "val"
     episodes: str | None = None  # JSONL file of episode specs (instead of the split)

@@ -13,7 +13,8 @@ around, multi-tick confirmation, approach, verify, recover, stop). S1 (``model.s
 the learned :class:`~vla_gr.core.dual_system.LearnedFollower` (RGB-D + the plan -> action
 chunk and STOP) or :class:`~vla_gr.core.dual_system.PurePursuit`; both carry the plan's
 waypoints into the current robot frame by odometry between ticks. The schedule is
-:func:`~vla_gr.core.dual_system.plan_interval` of the configured S2 and S1 rates.
+:func:`~vla_gr.core.dual_system.plan_interval` of the configured S2 and S1 rates
+(``model.schedule``).
 """
 
 from __future__ import annotations
@@ -41,7 +42,8 @@ class GroundedDualSystem:
 
     Args:
         perception: S2's perception (:class:`~vla_gr.policy.perception.Perception`).
-        navigator, field, pursuit: configs of the navigator, its GR field and the follower.
+        navigator, field, pursuit: configs of the navigator, its GR field and the follower;
+            the navigator's drive test is handed the follower's ``pursuit.lookahead``.
         plan_every: control steps per S2 tick.
         s1: the learned S1 network; None = the pure-pursuit follower (``pursuit``).
     """
@@ -56,11 +58,14 @@ class GroundedDualSystem:
         s1: S1Policy | None = None,
     ) -> None:
         self.perception = perception
-        self.navigator = Navigator(navigator, field, plan_every=plan_every)
+        pursuit_config = pursuit or PursuitConfig()
+        self.navigator = Navigator(
+            navigator, field, plan_every=plan_every, lookahead=pursuit_config.lookahead
+        )
         if s1 is None:
             self.follower = PurePursuit(pursuit)
         else:
-            guard = (pursuit or PursuitConfig()) if s1.config.depth_guard else None
+            guard = pursuit_config if s1.config.depth_guard else None
             self.follower = LearnedFollower(s1, guard=guard)
         self.plan_every = self.navigator.plan_every
         #: seconds of the last step's parts: ``s1`` always; on planner ticks ``s2`` and its two
@@ -74,8 +79,8 @@ class GroundedDualSystem:
     ) -> GroundedDualSystem:
         """Built from a ``ModelConfig``: ``navigator``, ``gr_field``, the S1 of ``s1.kind``
         (``s1`` is the learned network, used when the kind is ``learned``) and the S2 schedule
-        from ``dual_system``'s control and planning rates."""
-        d = model.dual_system
+        from ``schedule``'s control and planning rates."""
+        rates = model.schedule
         if model.s1.kind == "learned" and s1 is None:
             raise ValueError("model.s1.kind=learned needs the S1 network (s1=S1Policy(...))")
         return cls(
@@ -83,7 +88,7 @@ class GroundedDualSystem:
             navigator=model.navigator,
             field=model.gr_field,
             pursuit=model.pursuit,
-            plan_every=plan_interval(d.control_frequency_hz, d.planning_frequency_hz),
+            plan_every=plan_interval(rates.control_frequency_hz, rates.planning_frequency_hz),
             s1=s1 if model.s1.kind == "learned" else None,
         )
 

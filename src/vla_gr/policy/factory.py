@@ -24,6 +24,7 @@ from vla_gr.policy.vla_gr import VLAGRPolicy
 __all__ = [
     "INFERENCE_SETTINGS",
     "POLICY_CLASSES",
+    "REMOVED_KEYS",
     "RENAMED_KEYS",
     "checkpoint_model_config",
     "load_policy",
@@ -39,7 +40,83 @@ POLICY_CLASSES: dict[str, type[NavigationPolicy]] = {
     "end_to_end": EndToEndPolicy,
 }
 #: Model keys (under ``model.``) renamed since checkpoints were first written: old -> new.
-RENAMED_KEYS: dict[str, str] = {}
+#: A checkpoint or an override with an old key fails naming the new one; a migration
+#: (``vla-gr export SRC DST --rename-keys``) writes the new names.
+RENAMED_KEYS: dict[str, str] = {
+    # the navigator, one section per concern (vla_gr.core.gr_field.navigator_config)
+    "navigator.look_around_angle": "navigator.look_around.angle",
+    "navigator.look_around_completes": "navigator.look_around.completes",
+    "navigator.pixel_threshold": "navigator.confirmation.pixel_threshold",
+    "navigator.visible_threshold": "navigator.confirmation.visible_threshold",
+    "navigator.confirm_ticks": "navigator.confirmation.ticks",
+    "navigator.min_goal_pixels": "navigator.confirmation.min_goal_pixels",
+    "navigator.room_reject_threshold": "navigator.goal_checks.room_reject_threshold",
+    "navigator.room_ticks": "navigator.goal_checks.room_ticks",
+    "navigator.object_reject_threshold": "navigator.goal_checks.object_reject_threshold",
+    "navigator.object_ticks": "navigator.goal_checks.object_ticks",
+    "navigator.relation_distance": "navigator.goal_checks.relation_distance",
+    "navigator.anchor_outvotes_goal": "navigator.goal_checks.anchor_outvotes_goal",
+    "navigator.goal_yields_to_anchor": "navigator.goal_checks.goal_yields_to_anchor",
+    "navigator.anchor_ticks": "navigator.goal_checks.anchor_ticks",
+    "navigator.stop_distance": "navigator.approach.stop_distance",
+    "navigator.stop_distance_at_end": "navigator.approach.stop_distance_at_end",
+    "navigator.path_end_distance": "navigator.approach.path_end_distance",
+    "navigator.goal_halo_cells": "navigator.approach.goal_halo_cells",
+    "navigator.stop_visible_threshold": "navigator.approach.stop_visible_threshold",
+    "navigator.verify_steps": "navigator.approach.verify_steps",
+    "navigator.dead_end_steps": "navigator.approach.dead_end_steps",
+    "navigator.unreachable_steps": "navigator.approach.unreachable_steps",
+    "navigator.blocked_steps": "navigator.recovery.blocked_steps",
+    "navigator.blocked_distance": "navigator.recovery.blocked_distance",
+    "navigator.drive_bearing": "navigator.recovery.drive_bearing",
+    "navigator.stuck_steps": "navigator.recovery.stuck_steps",
+    "navigator.stuck_distance": "navigator.recovery.stuck_distance",
+    "navigator.recover_back_steps": "navigator.recovery.back_steps",
+    "navigator.recover_turn_steps": "navigator.recovery.turn_steps",
+    "navigator.recover_back_speed": "navigator.recovery.back_speed",
+    "navigator.virtual_obstacle_distance": "navigator.recovery.virtual_obstacle_distance",
+    "navigator.virtual_obstacle_radius": "navigator.recovery.virtual_obstacle_radius",
+    "navigator.no_path_steps": "navigator.recovery.no_path_steps",
+    "navigator.path_hold_steps": "navigator.recovery.path_hold_steps",
+    "navigator.trap_recoveries": "navigator.traps.recoveries",
+    "navigator.trap_rejects_goal": "navigator.traps.rejects_goal",
+    "navigator.trap_radius": "navigator.traps.radius",
+    "navigator.trap_obstacle_radius": "navigator.traps.obstacle_radius",
+    "navigator.tight_radius": "navigator.tight.radius",
+    "navigator.tight_steps": "navigator.tight.steps",
+    "navigator.tight_speed": "navigator.tight.speed",
+    "navigator.local_planner": "navigator.local_planner.enabled",
+    "navigator.local_cell": "navigator.local_planner.cell",
+    "navigator.local_window": "navigator.local_planner.window",
+    "navigator.local_margin": "navigator.local_planner.margin",
+    "navigator.local_start_radius": "navigator.local_planner.start_radius",
+    "navigator.local_clearance_cost": "navigator.local_planner.clearance_cost",
+    "navigator.local_min_progress": "navigator.local_planner.min_progress",
+    "navigator.local_replan_ticks": "navigator.local_planner.replan_ticks",
+    "navigator.local_off_path": "navigator.local_planner.off_path",
+    "navigator.local_min_hits": "navigator.local_planner.min_hits",
+    "navigator.virtual_obstacle_hits": "navigator.map_edits.obstacle_hits",
+    "navigator.noise_max_hits": "navigator.map_edits.noise_max_hits",
+    "navigator.noise_free_ratio": "navigator.map_edits.noise_free_ratio",
+    "navigator.visited_clear_radius": "navigator.map_edits.visited_clear_radius",
+    # one key per setting: the drive test reads the follower's own lookahead (the two were
+    # always equal); a migration refuses a checkpoint where they differ
+    "navigator.pursuit_lookahead": "pursuit.lookahead",
+    # the agent's schedule, apart from the seed's DualSystemArchitecture
+    "dual_system.planning_frequency_hz": "schedule.planning_frequency_hz",
+    "dual_system.control_frequency_hz": "schedule.control_frequency_hz",
+}
+_SEED_BLOCK = "configured the seed's latent DualSystemArchitecture, which no agent runs"
+#: Model keys removed since checkpoints were first written: key -> why. A migration
+#: (``vla-gr export SRC DST --rename-keys``) drops them.
+REMOVED_KEYS: dict[str, str] = {
+    f"dual_system.{key}": _SEED_BLOCK
+    for key in (
+        "visual_dim", "vlm_dim", "s1_hidden_dim", "s2_hidden_dim", "action_dim", "proprio_dim",
+        "goal_dim", "num_subgoals", "s1_num_layers", "s2_num_layers", "s2_num_heads", "dropout",
+        "gate",
+    )
+}  # fmt: skip
 #: Model settings a loaded checkpoint may change (no weight depends on them): the planner,
 #: its GR field, which S1 drives and how it samples, the follower, the S2 schedule, the goal
 #: head's inference options (category gate, test-time flip) and the segmenter's relation
@@ -49,7 +126,7 @@ INFERENCE_SETTINGS = (
     "pursuit.",
     "gr_field.",
     "instruction_lexicon.",
-    "dual_system.planning_frequency_hz",
+    "schedule.planning_frequency_hz",
     "goal_head.category_gate",
     "goal_head.test_time_flip",
     "object_category.relation_candidates",
@@ -110,15 +187,25 @@ def model_key_gaps(saved: Mapping) -> tuple[list[str], list[str]]:
     return sorted(want - have), sorted(have - want)
 
 
+_MIGRATE = "vla-gr export SRC DST --rename-keys"
+
+
 def _check_keys(saved: Mapping, path) -> None:
     """CheckpointError in one line when ``saved`` (a checkpoint's ``model`` section) lacks a
-    key of this version's ``ModelConfig`` or has one it does not know."""
+    key of this version's ``ModelConfig`` or has one it does not know (naming the new key
+    of a renamed one)."""
     missing, unknown = model_key_gaps(saved)
     for old in unknown:
         if old in RENAMED_KEYS:
             raise CheckpointError(
                 f"checkpoint {path}: model.{old} was renamed model.{RENAMED_KEYS[old]}; "
-                "export the checkpoint again (vla-gr export) to write the new name"
+                f"write the new names with {_MIGRATE}"
+            )
+    for old in unknown:
+        if old in REMOVED_KEYS:
+            raise CheckpointError(
+                f"checkpoint {path}: model.{old} was removed (it {REMOVED_KEYS[old]}); "
+                f"drop it with {_MIGRATE}"
             )
     if unknown:
         more = f" (and {len(unknown) - 1} more)" if len(unknown) > 1 else ""
@@ -144,6 +231,10 @@ def checkpoint_model_config(config_yaml: str, path, overrides: Sequence[str] = (
         raise CheckpointError(f"checkpoint {path}: config.yaml has no model section")
     for item in overrides:
         key = item.split("=", 1)[0].strip()
+        if key in RENAMED_KEYS:
+            raise ConfigError(
+                f"checkpoint override {item!r}: {key} was renamed {RENAMED_KEYS[key]}"
+            )
         if "=" not in item or not key.startswith(INFERENCE_SETTINGS):
             raise ConfigError(
                 f"checkpoint override {item!r} must be key=value with a key under "
@@ -164,8 +255,8 @@ def load_policy(
     """The agent of checkpoint folder ``path`` (``<run>/checkpoints/best``), verified, in
     eval mode on ``device``: the class its ``model.agent`` names (``expected``: refuse any
     other), PEFT layers re-applied before the weights (``model.safetensors``, the EMA
-    averages when training used EMA) are loaded. ``overrides`` (``"navigator.confirm_ticks=3"``)
-    change settings that no weight depends on."""
+    averages when training used EMA) are loaded. ``overrides``
+    (``"navigator.confirmation.ticks=3"``) change settings that no weight depends on."""
     loaded = read_checkpoint(path)
     config = checkpoint_model_config(loaded.config_yaml, path, overrides)
     cls = (

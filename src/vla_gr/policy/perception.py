@@ -96,7 +96,7 @@ class LearnedPerception:
 
     Args:
         config: the agent's ``ModelConfig`` (``object_category``, ``room_type``,
-            ``instruction_lexicon`` and ``navigator.pixel_threshold`` are read).
+            ``instruction_lexicon`` and ``navigator.confirmation.pixel_threshold`` are read).
         goal_head: the language-grounded goal head.
         room_type, object_category, instruction_reader, lexicon: optional checks and
             readers (None: the check passes, the field is read from template words only,
@@ -186,7 +186,7 @@ class LearnedPerception:
             return segmented[0]
 
         oc = self.config.object_category
-        threshold = self.config.navigator.pixel_threshold
+        threshold = self.config.navigator.confirmation.pixel_threshold
         with_segmenter = self.object_category is not None
         is_relation = reading.category is not None and reading.anchor is not None
         if with_segmenter and oc.relation_candidates and is_relation and not episode.has_colour:

@@ -102,7 +102,7 @@ def graft_part(
     checkpoint ``donor`` (e.g. a room-type classifier trained beside another goal head).
 
     ``settings`` are ``model.*`` keys without the prefix, applied last
-    (``navigator.room_reject_threshold=0.2``)."""
+    (``navigator.goal_checks.room_reject_threshold=0.2``)."""
     from omegaconf import OmegaConf
 
     given = read_checkpoint(donor)
@@ -284,7 +284,8 @@ def train_frame_part(
 ) -> dict:
     """Train the fresh ``model.<part>`` of the agent of ``init`` on ``frames`` (labelled in
     ``labels``' order, which must be its ``<part>.<labels_key>``) and write the agent, with
-    ``navigator.<threshold_key>`` set to ``reject_threshold``, to ``out``; returns the summary.
+    ``navigator.goal_checks.<threshold_key>`` set to ``reject_threshold``, to ``out``; returns
+    the summary.
 
     ``batch_loss(module, rgb, depth, label)`` and ``evaluate(module, frames)`` get the part
     (the ``role`` named in errors); ``score``, ``name`` and ``fit`` (``steps``,
@@ -300,7 +301,7 @@ def train_frame_part(
             f"frames are labelled in {list(labels)} but the {role} predicts "
             f"{predicted} ({part}.{labels_key})"
         )
-    setattr(config.model.navigator, threshold_key, float(reject_threshold))
+    setattr(config.model.navigator.goal_checks, threshold_key, float(reject_threshold))
     module = getattr(policy, part)
     policy.requires_grad_(False)
     summary, _ = fit_part(

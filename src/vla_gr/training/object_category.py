@@ -6,8 +6,8 @@ house regenerated from the episode's spec). Whole houses are held out for valida
 weights with the best held-out mean IoU over the categories are kept. The rest of the agent
 comes from ``init`` and stays fixed. The result is the agent with
 ``model.object_category.enabled=true`` and the object check on
-(``navigator.object_reject_threshold``), a checkpoint that ``vla-gr eval`` loads like any
-other.
+(``navigator.goal_checks.object_reject_threshold``), a checkpoint that ``vla-gr eval`` loads
+like any other.
 
     python -m vla_gr.training.object_category checkpoints/vla_gr_cpu outputs/object/agent \
         --store data/big4.zarr --episodes 1500 --stride 6 --eval-store data/expert_val60.zarr

@@ -6,7 +6,8 @@ relative to the start, gives the position. Frames outside every room (in a doorw
 out. Whole houses are held out for validation, and the weights with the best held-out
 accuracy are kept. The rest of the agent comes from ``init`` and stays fixed. The result is
 the agent with ``model.room_type.enabled=true`` and the room check on
-(``navigator.room_reject_threshold``), a checkpoint that ``vla-gr eval`` loads like any other.
+(``navigator.goal_checks.room_reject_threshold``), a checkpoint that ``vla-gr eval`` loads like
+any other.
 
     python -m vla_gr.training.room_type checkpoints/vla_gr_cpu outputs/room_type/agent \
         --store data/big3.zarr --episodes 1200 --stride 8 --eval-store data/expert_val60.zarr

@@ -85,7 +85,7 @@ def test_the_planning_radius_is_used_by_the_next_update_and_restored_without_the
 
 
 def test_the_navigator_plans_thinner_through_the_field_and_never_writes_its_config():
-    nav = make_nav(look_around_angle=0.0, tight_steps=2, tight_radius=0.05)
+    nav = make_nav(look_around={"angle": 0.0}, tight={"steps": 2, "radius": 0.05})
     config = dataclasses.replace(nav.field.config)
     tick(nav, (0.0, 0.0, 0.0))
     nav._start_tight()

@@ -7,21 +7,24 @@ import numpy as np
 import pytest
 import torch
 
+from tests.core.gr_field.navigator_scenes import LOOKAHEAD, navigator_config
 from vla_gr.core.dual_system.pure_pursuit import PurePursuit, PursuitConfig
 from vla_gr.core.gr_field import GRFieldConfig
 from vla_gr.core.gr_field.local_planner import LocalPlanner
 from vla_gr.core.gr_field.mapping import centred_grid
-from vla_gr.core.gr_field.navigator import Navigator, NavigatorConfig, NavPlan
+from vla_gr.core.gr_field.navigator import Navigator, NavPlan
+from vla_gr.core.gr_field.navigator_config import LocalPlannerConfig
 from vla_gr.geometry.camera import box_room_depth
 
 CELL, SIZE = 0.15, 48  # coarse map: 7.2 m side
 WALL_Y = 3.6  # m from the grid corner: a wall across the map with one gap
 
 
-def wall_planner(gap: float, **overrides) -> tuple[LocalPlanner, np.ndarray]:
-    """A planner whose fine cells hold a wall of points at WALL_Y with a ``gap`` (m) centred
-    at x = 3.6, and the wall points' positions (P, 2) from the grid corner."""
-    cfg = NavigatorConfig(local_planner=True, **overrides)
+def wall_planner(gap: float, **settings) -> tuple[LocalPlanner, np.ndarray]:
+    """A planner (its section only: ``LocalPlannerConfig(enabled=True, **settings)``) whose
+    fine cells hold a wall of points at WALL_Y with a ``gap`` (m) centred at x = 3.6, and the
+    wall points' positions (P, 2) from the grid corner."""
+    cfg = LocalPlannerConfig(enabled=True, **settings)
     planner = LocalPlanner(centred_grid(SIZE, CELL), 0.18, cfg, 0.1, 1.2)
     f = planner.cell
     cols = np.arange(planner.hits.shape[-1])
@@ -40,9 +43,10 @@ def room_obs() -> dict:
     return {"depth": depth, "pose": pose}
 
 
-def thin_navigator(**overrides) -> Navigator:
+def thin_navigator(**sections) -> Navigator:
     fcfg = GRFieldConfig(map_size=64, cell_size=0.15, ego_size=16)
-    return Navigator(NavigatorConfig(look_around_angle=0.0, **overrides), fcfg)
+    config = navigator_config(look_around={"angle": 0.0}, **sections)
+    return Navigator(config, fcfg, lookahead=LOOKAHEAD)
 
 
 def travel_upwards() -> np.ndarray:
@@ -82,11 +86,11 @@ def test_a_marked_obstacle_without_points_closes_the_gap():
     assert path is None or path[:, 1].max() < WALL_Y
 
 
-def test_a_lone_point_narrows_no_gap_with_local_min_hits():
+def test_a_lone_point_narrows_no_gap_with_min_hits():
     robot = np.array([3.0, WALL_Y - 1.0])
     paths = {}
     for min_hits in (1, 2):
-        planner, _ = wall_planner(gap=0.50, local_min_hits=min_hits)
+        planner, _ = wall_planner(gap=0.50, min_hits=min_hits)
         planner.hits *= 3.0  # the wall seen on three frames
         f = planner.cell
         planner.hits[0, 0, int(WALL_Y / f), int(3.6 / f)] = 1.0  # one stray point in the gap
@@ -96,7 +100,7 @@ def test_a_lone_point_narrows_no_gap_with_local_min_hits():
 
 
 def test_no_local_plan_without_progress_in_the_travel_time():
-    planner, _ = wall_planner(gap=0.50, local_min_progress=0.3)
+    planner, _ = wall_planner(gap=0.50, min_progress=0.3)
     robot = np.array([3.0, WALL_Y - 1.0])
     flat = np.full((SIZE, SIZE), 5.0)  # no cell is nearer the goal than another
     assert planner.plan(robot, flat, np.zeros((SIZE, SIZE), bool)) is None
@@ -117,7 +121,7 @@ def test_observed_depth_points_land_on_the_fine_cells_of_their_position():
 
 def test_the_navigator_follows_a_precise_local_path_only_while_planning_thin():
     for enabled in (False, True):
-        nav = thin_navigator(local_planner=enabled)
+        nav = thin_navigator(local_planner={"enabled": enabled})
         obs = room_obs()
         blank = np.zeros((32, 32), np.float32)
         assert not nav.plan(obs, blank).precise
@@ -144,12 +148,11 @@ def test_the_follower_lets_the_robot_width_through_on_a_precise_plan_only():
 
 
 @pytest.mark.parametrize(
-    "key, value",
-    [("local_cell", 0.0), ("local_window", -1.0), ("local_margin", -0.1), ("local_min_hits", 0)],
+    "key, value", [("cell", 0.0), ("window", -1.0), ("margin", -0.1), ("min_hits", 0)]
 )
 def test_local_settings_out_of_range_name_the_key(key, value):
-    with pytest.raises(ValueError, match=f"navigator.{key}"):
-        NavigatorConfig(**{key: value})
+    with pytest.raises(ValueError, match=rf"model\.navigator\.local_planner\.{key}="):
+        LocalPlannerConfig(**{key: value})
 
 
 def test_a_negative_precise_side_margin_is_refused():
@@ -159,7 +162,7 @@ def test_a_negative_precise_side_margin_is_refused():
 
 
 def test_a_local_path_is_followed_until_it_is_stale_or_the_robot_leaves_it(monkeypatch):
-    planner, _ = wall_planner(gap=0.50, local_replan_ticks=3, local_off_path=0.15)
+    planner, _ = wall_planner(gap=0.50, replan_ticks=3, off_path=0.15)
     robot = np.array([3.0, WALL_Y - 1.0])
     T, occupied = travel_upwards(), np.zeros((SIZE, SIZE), bool)
     first = planner.follow(robot, T, occupied)
@@ -172,7 +175,7 @@ def test_a_local_path_is_followed_until_it_is_stale_or_the_robot_leaves_it(monke
     planner.follow(moved, T, occupied)
     assert not calls  # third tick of the plan
     planner.follow(moved, T, occupied)
-    assert len(calls) == 1  # stale after local_replan_ticks: planned anew
+    assert len(calls) == 1  # stale after replan_ticks: planned anew
     planner.follow(moved + np.array([0.3, 0.0]), T, occupied)
     assert len(calls) == 2  # off the path: planned anew at once
     planner.forget()
@@ -184,7 +187,7 @@ def test_a_local_path_is_followed_until_it_is_stale_or_the_robot_leaves_it(monke
 def test_a_path_that_comes_and_goes_resets_the_no_path_count_only_when_held(
     hold, thin, monkeypatch
 ):
-    nav = thin_navigator(no_path_steps=3, path_hold_steps=hold)
+    nav = thin_navigator(recovery={"no_path_steps": 3, "path_hold_steps": hold})
     real_update = nav.field.update
     flicker = iter([False, True] * 10)  # the path is lost and found tick by tick
 

@@ -7,7 +7,16 @@ import numpy as np
 import pytest
 import torch
 
-from tests.core.gr_field.navigator_scenes import ROOM, N, make_nav, room_depth, tick, wall_goal
+from tests.core.gr_field.navigator_scenes import (
+    LOOKAHEAD,
+    ROOM,
+    N,
+    make_nav,
+    navigator_config,
+    room_depth,
+    tick,
+    wall_goal,
+)
 from vla_gr.core.dual_system.pure_pursuit import (
     PurePursuit,
     PursuitConfig,
@@ -15,7 +24,7 @@ from vla_gr.core.dual_system.pure_pursuit import (
     pursuit_action,
 )
 from vla_gr.core.gr_field.mapping import FREE_HITS, OCC_HITS
-from vla_gr.core.gr_field.navigator import Navigator, NavigatorConfig, NavPlan
+from vla_gr.core.gr_field.navigator import Navigator, NavPlan
 from vla_gr.geometry.pose2d import lookahead_target
 
 
@@ -37,8 +46,11 @@ def test_look_around_turns_in_place_until_a_full_turn():
 
 @pytest.mark.parametrize("completes", [False, True])
 def test_a_goal_confirmed_during_the_look_around_ends_it_unless_it_completes(completes):
-    nav = make_nav(look_around_completes=completes, confirm_ticks=2, stop_distance=10.0)
-    nav.config.stop_distance_at_end = 10.0
+    nav = make_nav(
+        look_around={"completes": completes},
+        confirmation={"ticks": 2},
+        approach={"stop_distance": 10.0, "stop_distance_at_end": 10.0},
+    )
     yaw, modes = 0.0, []
     for _ in range(80):
         depth = room_depth((0.0, 0.0, yaw))
@@ -57,7 +69,7 @@ def test_a_goal_confirmed_during_the_look_around_ends_it_unless_it_completes(com
 
 
 def test_single_tick_false_positive_does_not_commit_but_repeated_evidence_does():
-    nav = make_nav(look_around_angle=0.0, confirm_ticks=2)
+    nav = make_nav(look_around={"angle": 0.0}, confirmation={"ticks": 2})
     pose = (0.0, 0.0, 0.0)
     like = wall_goal(room_depth(pose))
     plan = tick(nav, pose, like)  # one tick of goal pixels
@@ -67,7 +79,7 @@ def test_single_tick_false_positive_does_not_commit_but_repeated_evidence_does()
         plan = tick(nav, pose)  # the "goal" vanished
     assert not nav.committed and plan.mode == "explore"
     nav.reset()
-    nav.config.look_around_angle = 0.0
+    nav.config.look_around.angle = 0.0
     tick(nav, pose, like)
     plan = tick(nav, pose, like)  # a second tick confirms
     assert nav.committed and plan.mode == "approach"
@@ -79,7 +91,7 @@ def test_single_tick_false_positive_does_not_commit_but_repeated_evidence_does()
 def test_frames_the_goal_head_calls_goal_free_cast_no_votes(threshold):
     pose = (0.0, 0.0, 0.0)
     like = wall_goal(room_depth(pose))
-    nav = make_nav(look_around_angle=0.0, visible_threshold=threshold)
+    nav = make_nav(look_around={"angle": 0.0}, confirmation={"visible_threshold": threshold})
     for _ in range(3):
         tick(nav, pose, like, visible=0.3)  # goal pixels, but "not in view" at p = 0.3
     assert nav.committed == (threshold == 0.0)  # gated at 0.5; pixels alone decide at 0
@@ -95,17 +107,17 @@ def test_frames_the_goal_head_calls_goal_free_cast_no_votes(threshold):
 
 def test_stop_only_when_the_confirmed_goal_is_within_stop_distance():
     far, near = (0.0, 0.0, 0.0), (ROOM[1] - 0.6, 0.0, 0.0)  # 3 m and 0.6 m from the wall
-    nav = make_nav(look_around_angle=0.0, stop_distance=0.8)
+    nav = make_nav(look_around={"angle": 0.0}, approach={"stop_distance": 0.8})
     for _ in range(3):
         plan = tick(nav, far, wall_goal(room_depth(far)))
         assert not plan.stop
     assert plan.mode == "approach" and plan.goal_distance > 2.5
-    nav = make_nav(look_around_angle=0.0, stop_distance=0.8)
+    nav = make_nav(look_around={"angle": 0.0}, approach={"stop_distance": 0.8})
     plan = tick(nav, near, wall_goal(room_depth(near)))
     assert not plan.stop  # seen once: not yet confirmed
     plan = tick(nav, near, wall_goal(room_depth(near)))
     assert plan.stop and plan.mode == "stop" and plan.goal_distance <= 0.8
-    nav = make_nav(look_around_angle=0.0, stop_distance=0.8)
+    nav = make_nav(look_around={"angle": 0.0}, approach={"stop_distance": 0.8})
     for _ in range(2):
         tick(nav, near, wall_goal(room_depth(near)))
     turned = (near[0], near[1], math.pi)  # confirmed, near, but looking away: verify first
@@ -115,7 +127,7 @@ def test_stop_only_when_the_confirmed_goal_is_within_stop_distance():
 
 def test_stop_evidence_records_the_stop_tick_only():
     near = (ROOM[1] - 0.6, 0.0, 0.0)
-    nav = make_nav(look_around_angle=0.0, stop_distance=0.8)
+    nav = make_nav(look_around={"angle": 0.0}, approach={"stop_distance": 0.8})
     like = wall_goal(room_depth(near))
     tick(nav, near, like, visible=0.7)
     assert nav.stop_evidence == {}  # no STOP yet
@@ -123,7 +135,7 @@ def test_stop_evidence_records_the_stop_tick_only():
     assert plan.stop
     ev = dict(nav.stop_evidence)
     assert ev["goal_visible"] == 0.9 and ev["tick"] == 1 and ev["peak_likelihood"] == 1.0
-    assert ev["goal_pixels"] >= nav.config.min_goal_pixels
+    assert ev["goal_pixels"] >= nav.config.confirmation.min_goal_pixels
     assert ev["max_votes"] == 2 and ev["total_votes"] == 2 * ev["goal_cells"]
     assert ev["distance"] == pytest.approx(plan.goal_distance, abs=1e-3)
     tick(nav, near, like, visible=0.1)  # a later STOP tick does not overwrite it
@@ -133,7 +145,7 @@ def test_stop_evidence_records_the_stop_tick_only():
 
 
 def test_blocked_fires_after_the_window_marks_an_obstacle_and_backs_up():
-    nav = make_nav(look_around_angle=0.0, blocked_steps=10, stuck_steps=1000)
+    nav = make_nav(look_around={"angle": 0.0}, recovery={"blocked_steps": 10, "stuck_steps": 1000})
     pose = (0.0, 0.0, 0.0)
     like = wall_goal(room_depth(pose))  # a goal straight ahead: the plan drives forward
     modes = [tick(nav, pose, like).mode for _ in range(12)]
@@ -143,30 +155,34 @@ def test_blocked_fires_after_the_window_marks_an_obstacle_and_backs_up():
     assert plan.mode == "recover" and plan.command[0] < 0.0  # backs up first
     r, c = nav.field.grid.world_to_cell(np.array([0.3, 0.0]))
     near = nav.field.evidence()[OCC_HITS, r - 1 : r + 2, c - 1 : c + 2]  # (3, 3) around it
-    assert near.max() >= nav.config.virtual_obstacle_hits  # a virtual obstacle in front
+    assert near.max() >= nav.config.map_edits.obstacle_hits  # a virtual obstacle in front
     nav.map_edits.clear_virtual_obstacles()
     assert nav.field.evidence()[OCC_HITS, r - 1 : r + 2, c - 1 : c + 2].max() < 10
 
 
 def test_no_progress_fires_after_the_window_without_a_virtual_obstacle():
-    nav = make_nav(look_around_angle=0.0, stuck_steps=10, blocked_steps=1000)
+    nav = make_nav(look_around={"angle": 0.0}, recovery={"stuck_steps": 10, "blocked_steps": 1000})
     pose = (0.0, 0.0, 0.0)
     modes = [tick(nav, pose).mode for _ in range(12)]
     assert modes[:10] == ["explore"] * 10  # window not full yet
     assert modes[10] == "recover" and nav.recoveries == 1 and not nav.map_edits.virtual
-    moving = make_nav(look_around_angle=0.0, stuck_steps=10, blocked_steps=1000)
+    moving = make_nav(
+        look_around={"angle": 0.0}, recovery={"stuck_steps": 10, "blocked_steps": 1000}
+    )
     modes = [tick(moving, (0.05 * k, 0.0, 0.0)).mode for k in range(12)]
     assert "recover" not in modes  # 0.5 m in the window is progress
 
 
 def test_durations_scale_with_plan_every():
-    nav = Navigator(NavigatorConfig(stuck_steps=40), plan_every=3)
+    nav = Navigator(navigator_config(recovery={"stuck_steps": 40}), plan_every=3, lookahead=0.6)
     assert nav.steps_to_ticks(40) == 14 and nav.steps_to_ticks(0) == 0
     assert nav.positions.maxlen == 15  # the stuck window in ticks, plus the current one
     with pytest.raises(ValueError, match="plan_every"):
-        Navigator(plan_every=0)
-    with pytest.raises(ValueError, match="stop_distance"):
-        NavigatorConfig(stop_distance=-1.0)
+        Navigator(plan_every=0, lookahead=LOOKAHEAD)
+    with pytest.raises(ValueError, match="lookahead"):
+        Navigator(lookahead=0.0)
+    with pytest.raises(ValueError, match=r"model\.navigator\.approach\.stop_distance=-1\.0"):
+        navigator_config(approach={"stop_distance": -1.0})
 
 
 def test_pursuit_turns_left_for_a_left_waypoint_and_drives_straight_ahead():
@@ -221,7 +237,7 @@ def test_lookahead_skips_passed_waypoints():
 
 
 def test_noise_is_forgotten_but_real_obstacles_stay():
-    nav = make_nav(look_around_angle=0.0, noise_free_ratio=1.0)
+    nav = make_nav(look_around={"angle": 0.0}, map_edits={"noise_free_ratio": 1.0})
     tick(nav, (0.0, 0.0, 0.0))
     stray, real, unseen = torch.tensor([[5, 5]]), torch.tensor([[6, 6]]), torch.tensor([[7, 7]])
     assert nav.field.evidence()[:, 5:8, 5:8].sum() == 0  # outside the room: never seen
@@ -235,12 +251,13 @@ def test_noise_is_forgotten_but_real_obstacles_stay():
 
 
 def test_visited_cells_count_as_explored_without_hiding_obstacles():
-    nav = make_nav(look_around_angle=0.0)
+    nav = make_nav(look_around={"angle": 0.0})
     tick(nav, (0.0, 0.0, 0.0))
     r, c = nav.field.grid.world_to_cell(np.array([-0.6, 0.0]))  # behind: never seen
     assert nav.field.evidence()[:, r, c].sum() == 0
     nav.field.add_obstacle_evidence(torch.tensor([[r + 1, c]]), 3.0)  # an obstacle beside it
-    nav.map_edits.mark_visited(np.array([0.0, 0.0]), 0.8)
+    assert nav.config.map_edits.visited_clear_radius == 0.8
+    nav.map_edits.mark_visited(np.array([0.0, 0.0]))
     free = nav.field.evidence()[FREE_HITS]  # (H, W)
     assert free[r, c] == 1.0 and free[r + 1, c] == 0.0
 
@@ -259,22 +276,24 @@ def test_pursuit_turns_in_place_instead_of_arcing_into_a_near_obstacle():
 
 
 def test_tight_mode_plans_thinner_and_slower_then_restores_the_radius():
-    nav = make_nav(look_around_angle=0.0, tight_steps=3, tight_radius=0.05)
+    nav = make_nav(look_around={"angle": 0.0}, tight={"steps": 3, "radius": 0.05})
     pose = (0.0, 0.0, 0.0)
     assert tick(nav, pose).max_speed == 1.0
     nav._start_tight()
     assert nav.field.planning_radius == 0.05
     assert nav.field_config.robot_radius == 0.18  # the configured radius is untouched
     speeds = [tick(nav, pose).max_speed for _ in range(4)]
-    assert speeds[:2] == [nav.config.tight_speed] * 2 and speeds[-1] == 1.0
+    assert speeds[:2] == [nav.config.tight.speed] * 2 and speeds[-1] == 1.0
     assert nav.field.planning_radius == 0.18
 
 
 def test_a_goal_that_fails_to_verify_is_rejected_and_a_verified_one_stops():
     near = (ROOM[1] - 0.6, 0.0, 0.0)  # 0.6 m from the wall the likelihood marks
     like = wall_goal(room_depth(near))
-    nav = make_nav(look_around_angle=0.0, stop_distance=0.8, stop_visible_threshold=0.6,
-                   verify_steps=3)  # fmt: skip
+    nav = make_nav(
+        look_around={"angle": 0.0},
+        approach={"stop_distance": 0.8, "stop_visible_threshold": 0.6, "verify_steps": 3},
+    )
     tick(nav, near, like, visible=0.2)
     plan = tick(nav, near, like, visible=0.2)  # confirmed and near, goal pixels in view
     assert nav.committed and not plan.stop and plan.mode == "verify"  # but p = 0.2 < 0.6
@@ -289,12 +308,14 @@ def test_a_goal_that_fails_to_verify_is_rejected_and_a_verified_one_stops():
         plan = tick(nav, near, like, visible=1.0)
     assert not nav.committed and not plan.stop and nav.goal_votes.max() == 0
     # the same goal with a verifying head stops on the tick it is confirmed
-    nav = make_nav(look_around_angle=0.0, stop_distance=0.8, stop_visible_threshold=0.6)
+    nav = make_nav(
+        look_around={"angle": 0.0}, approach={"stop_distance": 0.8, "stop_visible_threshold": 0.6}
+    )
     tick(nav, near, like, visible=0.2)
     plan = tick(nav, near, like, visible=0.6)
     assert plan.stop and nav.rejections == 0
     # off (0): after verify_steps without goal pixels the robot stops anyway, as before
-    nav = make_nav(look_around_angle=0.0, stop_distance=0.8, verify_steps=1)
+    nav = make_nav(look_around={"angle": 0.0}, approach={"stop_distance": 0.8, "verify_steps": 1})
     for _ in range(2):
         tick(nav, near, like, visible=0.0)
     turned = (near[0], near[1], math.pi)
@@ -302,10 +323,10 @@ def test_a_goal_that_fails_to_verify_is_rejected_and_a_verified_one_stops():
     assert tick(nav, turned).stop and nav.rejections == 0
 
 
-def _dead_end_setup(**overrides):
+def _dead_end_setup(**sections):
     """A navigator committed to a goal cluster it cannot see, and a field output whose path
     ends at the robot (the last waypoint 0.1 m ahead)."""
-    nav = make_nav(look_around_angle=0.0, **overrides)
+    nav = make_nav(look_around={"angle": 0.0}, **sections)
     pose = np.array([0.0, 0.0, 0.0])
     tick(nav, pose)  # the field has maps
     nav.goal_votes[40:42, 36:38] = 5  # a confirmed goal ~0.7 m to the robot's left
@@ -328,7 +349,7 @@ def _dead_end_setup(**overrides):
 
 
 def test_a_goal_the_robot_stands_at_the_dead_end_of_is_rejected():
-    nav, decide = _dead_end_setup(dead_end_steps=3)
+    nav, decide = _dead_end_setup(approach={"dead_end_steps": 3})
     for _ in range(2):
         plan = decide(last_waypoint=0.1)
         assert plan.mode == "approach" and nav.rejections == 0
@@ -343,8 +364,8 @@ def test_a_goal_the_robot_stands_at_the_dead_end_of_is_rejected():
     assert entry["xy"] == pytest.approx([origin + 36.5 * h, origin + 40.5 * h], abs=1e-3)
     assert not nav.rejected[20, 20]  # elsewhere the map still takes votes
     # a path that still leads somewhere, or the rule off: never rejected
-    for overrides, last in (({"dead_end_steps": 3}, 1.5), ({"dead_end_steps": 0}, 0.1)):
-        nav, decide = _dead_end_setup(**overrides)
+    for steps, last in ((3, 1.5), (0, 0.1)):
+        nav, decide = _dead_end_setup(approach={"dead_end_steps": steps})
         for _ in range(10):
             assert decide(last_waypoint=last).mode == "approach"
         assert nav.rejections == 0
@@ -352,7 +373,7 @@ def test_a_goal_the_robot_stands_at_the_dead_end_of_is_rejected():
 
 def test_a_goal_the_field_finds_no_way_to_for_unreachable_steps_is_rejected():
     # tight planning starts after 2 ticks without a way; it does not restart the count
-    nav, decide = _dead_end_setup(unreachable_steps=5, no_path_steps=2)
+    nav, decide = _dead_end_setup(approach={"unreachable_steps": 5}, recovery={"no_path_steps": 2})
     for k in range(4):
         assert decide(last_waypoint=1.5, reachable=False).mode == "approach"
         assert nav.rejections == 0
@@ -363,18 +384,18 @@ def test_a_goal_the_field_finds_no_way_to_for_unreachable_steps_is_rejected():
     assert nav.rejected[40:42, 36:38].all()
     assert nav.rejection_log[0]["reason"] == "unreachable"
     # a tick with a way to the goal starts the count again; the rule off never rejects
-    nav, decide = _dead_end_setup(unreachable_steps=5)
+    nav, decide = _dead_end_setup(approach={"unreachable_steps": 5})
     for k in range(12):
         assert decide(last_waypoint=1.5, reachable=k % 4 == 3).mode == "approach"
     assert nav.rejections == 0
-    nav, decide = _dead_end_setup(unreachable_steps=0)
+    nav, decide = _dead_end_setup(approach={"unreachable_steps": 0})
     for _ in range(12):  # (more ticks without moving would start a recovery)
         assert decide(last_waypoint=1.5, reachable=False).mode == "approach"
     assert nav.rejections == 0
 
 
 def test_a_robot_trapped_in_one_spot_closes_the_way_ahead_or_rejects_its_goal():
-    nav = make_nav(look_around_angle=0.0, trap_recoveries=3, trap_radius=0.5)
+    nav = make_nav(look_around={"angle": 0.0}, traps={"recoveries": 3, "radius": 0.5})
     pose = np.array([0.0, 0.0, 0.0])
     tick(nav, pose)
     ahead = tuple(nav.map_edits.disk_cells(np.array([0.55, 0.0]), 0.01)[0].tolist())  # (row, col)
@@ -387,31 +408,31 @@ def test_a_robot_trapped_in_one_spot_closes_the_way_ahead_or_rejects_its_goal():
         nav._start_recovery(pose + [0.1 * k, 0.0, 0.0], mark=True)
     assert nav.traps == 0 and occ_ahead() == 0
     nav._start_recovery(pose, mark=True)  # the third within 0.5 m
-    assert nav.traps == 1 and occ_ahead() >= nav.config.virtual_obstacle_hits
+    assert nav.traps == 1 and occ_ahead() >= nav.config.map_edits.obstacle_hits
     nav.map_edits.clear_virtual_obstacles()  # no path: virtual obstacles go, the lasting one stays
-    assert occ_ahead() >= nav.config.virtual_obstacle_hits
+    assert occ_ahead() >= nav.config.map_edits.obstacle_hits
     # committed to a goal: the goal is rejected instead
-    nav, decide = _dead_end_setup(trap_recoveries=2)
+    nav, decide = _dead_end_setup(traps={"recoveries": 2})
     h = nav.field.cell_size
     nearest = np.array([(36 + 0.5) * h, (40 + 0.5) * h])
     for _ in range(2):
         nav._start_recovery(np.zeros(3), mark=False, nearest=nearest)
     assert nav.traps == 1 and nav.rejections == 1 and nav.goal_votes.max() == 0
     assert nav.rejection_log[0]["reason"] == "trap"
-    # without trap_rejects_goal the goal keeps its votes and the way ahead is closed instead
-    nav, _ = _dead_end_setup(trap_recoveries=2, trap_rejects_goal=False)
+    # without traps.rejects_goal the goal keeps its votes and the way ahead is closed instead
+    nav, _ = _dead_end_setup(traps={"recoveries": 2, "rejects_goal": False})
     ahead = tuple(nav.map_edits.disk_cells(np.array([0.55, 0.0]), 0.01)[0].tolist())
     for _ in range(2):
         nav._start_recovery(np.zeros(3), mark=False, nearest=nearest)
     assert nav.traps == 1 and nav.rejections == 0 and nav.goal_votes[40:42, 36:38].min() == 5
     occ = nav.field.evidence()[OCC_HITS]  # (H, W)
-    assert occ[ahead] >= nav.config.virtual_obstacle_hits and not nav.map_edits.virtual
+    assert occ[ahead] >= nav.config.map_edits.obstacle_hits and not nav.map_edits.virtual
 
 
 def test_rejecting_at_a_cell_outside_any_confirmed_goal_rejects_only_its_neighbourhood():
     nav, _ = _dead_end_setup()
     h = nav.field.cell_size
-    nav.goal_votes[10, 10] = 1  # a vote elsewhere, below confirm_ticks
+    nav.goal_votes[10, 10] = 1  # a vote elsewhere, below confirmation.ticks
     nav._reject_goal(np.array([(20 + 0.5) * h, (20 + 0.5) * h]), "trap")  # (20, 20): no goal
     assert nav.rejected.sum() == 25 and nav.rejected[18:23, 18:23].all()
     assert nav.goal_votes[40:42, 36:38].min() == 5 and nav.goal_votes[10, 10] == 1

@@ -4,7 +4,13 @@ import numpy as np
 import pytest
 
 from tests.core.gr_field.navigator_scenes import ROOM, make_nav, room_depth, wall_goal
-from vla_gr.core.gr_field.navigator import NavigatorConfig
+from vla_gr.core.gr_field.navigator_config import GoalChecksConfig
+
+
+def _checked_nav(**goal_checks):
+    """A navigator that stops within 0.8 m of a confirmed goal, with ``goal_checks`` set."""
+    return make_nav(look_around={"angle": 0.0}, approach={"stop_distance": 0.8},
+                    goal_checks=goal_checks)  # fmt: skip
 
 
 def test_the_room_check_rejects_a_goal_in_another_room_and_stops_in_the_right_one():
@@ -12,8 +18,7 @@ def test_the_room_check_rejects_a_goal_in_another_room_and_stops_in_the_right_on
     like = wall_goal(room_depth(near))
 
     def run(room_match, threshold=0.5, ticks=4):
-        nav = make_nav(look_around_angle=0.0, stop_distance=0.8, room_reject_threshold=threshold,
-                       room_ticks=2)  # fmt: skip
+        nav = _checked_nav(room_reject_threshold=threshold, room_ticks=2)
         depth = room_depth(near)
         plans = [
             nav.plan({"depth": depth, "pose": np.array(near, np.float32)}, like, 1.0, m)
@@ -43,8 +48,7 @@ def test_the_object_check_rejects_a_goal_of_another_category_and_ignores_ticks_w
     like = wall_goal(room_depth(near))
 
     def run(object_match, threshold=0.5):
-        nav = make_nav(look_around_angle=0.0, stop_distance=0.8,
-                       object_reject_threshold=threshold, object_ticks=2)  # fmt: skip
+        nav = _checked_nav(object_reject_threshold=threshold, object_ticks=2)
         depth = room_depth(near)
         pose = np.array(near, np.float32)
         plans = [nav.plan({"depth": depth, "pose": pose}, like, 1.0, 1.0, m) for m in object_match]
@@ -86,7 +90,7 @@ def test_the_relation_check_rejects_a_goal_without_its_anchor_mapped_near():
     apart = anchor_at(slice(n - 3, n))  # the wall's far right edge, about 0.5 m from it
 
     def run(anchor, distance=0.2):
-        nav = make_nav(look_around_angle=0.0, stop_distance=0.8, relation_distance=distance)
+        nav = _checked_nav(relation_distance=distance)
         pose = np.array(near, np.float32)
         plans = [nav.plan({"depth": depth, "pose": pose}, like, 1.0, 1.0, None, anchor)
                  for _ in range(2)]  # fmt: skip
@@ -118,8 +122,7 @@ def test_an_anchor_read_on_the_goal_itself_is_not_its_anchor_when_the_anchor_mus
     beside[:, n // 2 + 5 : n // 2 + 9] = (like.sum(1) > 0)[:, None]  # the wall right of it
 
     def run(anchor, outvote):
-        nav = make_nav(look_around_angle=0.0, stop_distance=0.8, relation_distance=0.2,
-                       anchor_outvotes_goal=outvote)  # fmt: skip
+        nav = _checked_nav(relation_distance=0.2, anchor_outvotes_goal=outvote)
         pose = np.array(near, np.float32)
         plans = [nav.plan({"depth": depth, "pose": pose}, like, 1.0, 1.0, None, anchor)
                  for _ in range(2)]  # fmt: skip
@@ -147,8 +150,8 @@ def test_an_anchor_read_on_the_goal_itself_is_not_its_anchor_when_the_anchor_mus
     ],
 )
 def test_room_check_settings_out_of_range_name_the_key(overrides, key):
-    with pytest.raises(ValueError, match=f"model.navigator.{key}"):
-        NavigatorConfig(**overrides)
+    with pytest.raises(ValueError, match=rf"model\.navigator\.goal_checks\.{key}="):
+        GoalChecksConfig(**overrides)
 
 
 def test_a_goal_read_where_the_anchor_was_read_more_often_is_the_anchor_when_the_goal_yields():
@@ -157,11 +160,15 @@ def test_a_goal_read_where_the_anchor_was_read_more_often_is_the_anchor_when_the
     like = wall_goal(depth)  # the goal head's pixels on the wall, and the segmenter's anchor
 
     def run(yields):
-        nav = make_nav(look_around_angle=0.0, stop_distance=0.8, relation_distance=1.0,
-                       visible_threshold=0.5, goal_yields_to_anchor=yields)  # fmt: skip
+        nav = make_nav(
+            look_around={"angle": 0.0},
+            approach={"stop_distance": 0.8},
+            confirmation={"visible_threshold": 0.5},
+            goal_checks={"relation_distance": 1.0, "goal_yields_to_anchor": yields},
+        )
         pose = np.array(near, np.float32)
         # the anchor is read there on three ticks, the goal on the last two (the first is
-        # below visible_threshold: no goal votes)
+        # below confirmation.visible_threshold: no goal votes)
         plans = [nav.plan({"depth": depth, "pose": pose}, like, visible, 1.0, None, like)
                  for visible in (0.0, 1.0, 1.0)]  # fmt: skip
         return nav, plans
@@ -182,8 +189,12 @@ def test_an_anchor_needs_anchor_ticks_ticks_of_its_pixels(anchor_ticks, stops):
     n = depth.shape[1]
     beside = np.zeros_like(like)
     beside[:, n // 2 + 5 : n // 2 + 9] = (like.sum(1) > 0)[:, None]  # the wall right of it
-    nav = make_nav(look_around_angle=0.0, stop_distance=0.8, relation_distance=0.5,
-                   visible_threshold=0.5, anchor_ticks=anchor_ticks)  # fmt: skip
+    nav = make_nav(
+        look_around={"angle": 0.0},
+        approach={"stop_distance": 0.8},
+        confirmation={"visible_threshold": 0.5},
+        goal_checks={"relation_distance": 0.5, "anchor_ticks": anchor_ticks},
+    )
     pose = np.array(near, np.float32)
     # the anchor is seen on three ticks; the goal votes on the last two, confirmed at the third
     plans = [nav.plan({"depth": depth, "pose": pose}, like, visible, 1.0, None, beside)

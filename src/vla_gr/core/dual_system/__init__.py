@@ -1,11 +1,12 @@
 """Dual system: a slow planner S2 steering a fast reactive controller S1.
 
-Data flow: :mod:`.config` (``DualSystemConfig``) -> :mod:`.planner` (``S2Planner``: latent
-goal + confidence) -> :mod:`.controller` (``S1Controller``: action) -> :mod:`.architecture`
-(``DualSystemArchitecture``: S2 every few S1 calls) -> :mod:`.runner` (the same schedule
-with S2 in a background thread, S1 never waiting). :mod:`.pure_pursuit` (``PurePursuit``)
-is the non-learned S1 that follows the GR-field navigator's waypoints; :mod:`.learned_s1`
-(``S1Policy``, ``LearnedFollower``) is the learned one, reading :mod:`.s1_inputs`.
+Data flow: :mod:`.config` (``DualSystemConfig``; the agent's ``ScheduleConfig`` and
+``S1Config``) -> :mod:`.planner` (``S2Planner``: latent goal + confidence) -> :mod:`.controller`
+(``S1Controller``: action) -> :mod:`.architecture` (``DualSystemArchitecture``: S2 every few S1
+calls) -> :mod:`.runner` (the same schedule with S2 in a background thread, S1 never waiting).
+:mod:`.pure_pursuit` (``PurePursuit``) is the non-learned S1 that follows the GR-field
+navigator's waypoints; :mod:`.learned_s1` (``S1Policy``, ``LearnedFollower``) is the learned
+one, reading :mod:`.s1_inputs`.
 """
 
 from vla_gr.core.dual_system.architecture import (
@@ -13,7 +14,13 @@ from vla_gr.core.dual_system.architecture import (
     confidence_targets,
     plan_interval,
 )
-from vla_gr.core.dual_system.config import GATES, S1_KINDS, DualSystemConfig, S1Config
+from vla_gr.core.dual_system.config import (
+    GATES,
+    S1_KINDS,
+    DualSystemConfig,
+    S1Config,
+    ScheduleConfig,
+)
 from vla_gr.core.dual_system.controller import S1Controller, gate_actions
 from vla_gr.core.dual_system.learned_s1 import LearnedFollower, S1Policy
 from vla_gr.core.dual_system.planner import S2Planner
@@ -35,6 +42,7 @@ __all__ = [
     "S1Controller",
     "S1Policy",
     "S2Planner",
+    "ScheduleConfig",
     "confidence_targets",
     "gate_actions",
     "plan_interval",

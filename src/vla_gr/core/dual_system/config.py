@@ -1,8 +1,13 @@
-"""``DualSystemConfig``: every setting of the S2 planner + S1 controller (``model.dual_system``).
+"""The dual system's configs: the seed's building block, the agent's schedule and its S1.
 
-:class:`~vla_gr.core.dual_system.architecture.DualSystemArchitecture` is built from it; its
-keyword constructor (the seed's call) fills one. Next in the data flow:
-:mod:`vla_gr.core.dual_system.architecture`.
+- ``DualSystemConfig``: every setting of the seed's latent S2 planner + S1 controller;
+  :class:`~vla_gr.core.dual_system.architecture.DualSystemArchitecture` is built from it and its
+  keyword constructor (the seed's call) fills one. No agent runs that block, so it is no
+  section of ``model``;
+- ``ScheduleConfig`` (``model.schedule``): the VLA-GR agent's S2 and S1 rates;
+- ``S1Config`` (``model.s1``): the agent's S1.
+
+Next in the data flow: :mod:`vla_gr.core.dual_system.architecture`.
 """
 
 from __future__ import annotations
@@ -12,11 +17,12 @@ from dataclasses import dataclass, field
 from vla_gr.core.diffusion_policy.config import HeadConfig
 from vla_gr.validation import check_choice, check_positive, check_positive_int
 
-__all__ = ["GATES", "S1_KINDS", "DualSystemConfig", "S1Config"]
+__all__ = ["GATES", "S1_KINDS", "DualSystemConfig", "S1Config", "ScheduleConfig"]
 
 GATES = ("confidence", "learned")
 #: S1 of the grounded dual system: the learned controller, or the pure-pursuit follower.
 S1_KINDS = ("learned", "pure_pursuit")
+_BLOCK = "DualSystemConfig"  # the seed's block: no model key
 
 
 def _s1_head() -> HeadConfig:
@@ -32,7 +38,8 @@ def _s1_head() -> HeadConfig:
 
 @dataclass
 class DualSystemConfig:
-    """The first six fields are the seed's positional arguments of ``DualSystemArchitecture``."""
+    """The seed's ``DualSystemArchitecture`` (its first six fields are the seed's positional
+    arguments); errors name ``DualSystemConfig.<field>``."""
 
     visual_dim: int = 512  # width of the visual features given to S1
     vlm_dim: int = 768  # width of the vision-language features given to S2
@@ -55,15 +62,29 @@ class DualSystemConfig:
             "visual_dim", "vlm_dim", "s1_hidden_dim", "s2_hidden_dim", "action_dim",
             "proprio_dim", "s1_num_layers", "s2_num_layers", "s2_num_heads",
         ):  # fmt: skip
-            check_positive_int(f"model.dual_system.{key}", getattr(self, key))
+            check_positive_int(f"{_BLOCK}.{key}", getattr(self, key))
         if self.goal_dim is not None:
-            check_positive_int("model.dual_system.goal_dim", self.goal_dim)
-        check_positive("model.dual_system.num_subgoals", self.num_subgoals, allow_zero=True)
-        check_positive("model.dual_system.planning_frequency_hz", self.planning_frequency_hz)
-        check_positive("model.dual_system.control_frequency_hz", self.control_frequency_hz)
+            check_positive_int(f"{_BLOCK}.goal_dim", self.goal_dim)
+        check_positive(f"{_BLOCK}.num_subgoals", self.num_subgoals, allow_zero=True)
+        check_positive(f"{_BLOCK}.planning_frequency_hz", self.planning_frequency_hz)
+        check_positive(f"{_BLOCK}.control_frequency_hz", self.control_frequency_hz)
         if not 0.0 <= self.dropout < 1.0:
-            raise ValueError(f"model.dual_system.dropout={self.dropout!r} must be in [0, 1)")
-        check_choice("model.dual_system.gate", self.gate, GATES)
+            raise ValueError(f"{_BLOCK}.dropout={self.dropout!r} must be in [0, 1)")
+        check_choice(f"{_BLOCK}.gate", self.gate, GATES)
+
+
+@dataclass
+class ScheduleConfig:
+    """When the VLA-GR agent's S2 and S1 run (``model.schedule``): S2 plans every
+    :func:`~vla_gr.core.dual_system.architecture.plan_interval` (control / planning rate,
+    rounded) control steps, S1 acts on every one."""
+
+    planning_frequency_hz: float = 2.0  # S2 rate
+    control_frequency_hz: float = 20.0  # S1 rate (one action per control step)
+
+    def __post_init__(self) -> None:
+        check_positive("model.schedule.planning_frequency_hz", self.planning_frequency_hz)
+        check_positive("model.schedule.control_frequency_hz", self.control_frequency_hz)
 
 
 @dataclass

@@ -1,15 +1,16 @@
 """S2's checks of a confirmed goal before a STOP: the room, the object's category, a relation.
 
 The navigator (:mod:`vla_gr.core.gr_field.navigator`) feeds :class:`GoalChecks` on every tick
-and asks it, near a confirmed goal, whether the goal must be rejected:
+and asks it, near a confirmed goal, whether the goal must be rejected (settings:
+``model.navigator.goal_checks``, :class:`~vla_gr.core.gr_field.navigator_config.GoalChecksConfig`):
 
 - room: the mean over the last ``room_ticks`` ticks of the probability that the robot stands
   in a room of the instructed type is below ``room_reject_threshold``;
 - object: the mean over the last ``object_ticks`` ticks with evidence of the probability that
   the goal pixels show the instructed category is below ``object_reject_threshold``;
 - relation: no anchor cell (anchor pixels landed in it on ``anchor_ticks`` ticks, by default
-  ``confirm_ticks``; with ``anchor_outvotes_goal`` also on more ticks than goal pixels did)
-  lies within ``relation_distance`` of the goal's cells.
+  ``confirmation.ticks``; with ``anchor_outvotes_goal`` also on more ticks than
+  goal pixels did) lies within ``relation_distance`` of the goal's cells.
 
 A threshold or distance of 0 switches its check off; the STOP evidence records all three.
 """
@@ -23,19 +24,32 @@ from collections.abc import Callable
 import numpy as np
 from scipy import ndimage
 
+from vla_gr.core.gr_field.navigator_config import GoalChecksConfig
+
 __all__ = ["GoalChecks"]
 
 
 class GoalChecks:
-    """The evidence of the three checks for one episode; ``config`` is a ``NavigatorConfig``.
+    """The evidence of the three checks for one episode.
 
     Args:
-        config: the navigator's settings (thresholds, tick windows, ``confirm_ticks``).
+        config: the checks' settings (``model.navigator.goal_checks``: thresholds, tick
+            windows, the relation's anchor).
+        confirm_ticks: ticks with goal pixels before a cell is a goal
+            (``model.navigator.confirmation.ticks``); also the anchor's when
+            ``config.anchor_ticks`` is 0.
         shape: (H, W) of the navigator's map; ``cell_size`` its cells' side in metres.
     """
 
-    def __init__(self, config, shape: tuple[int, int], cell_size: float) -> None:
-        self.config, self.shape, self.cell_size = config, shape, float(cell_size)
+    def __init__(
+        self,
+        config: GoalChecksConfig,
+        confirm_ticks: int,
+        shape: tuple[int, int],
+        cell_size: float,
+    ) -> None:
+        self.config, self.confirm_ticks = config, confirm_ticks
+        self.shape, self.cell_size = shape, float(cell_size)
         self.reset()
 
     def reset(self) -> None:
@@ -77,7 +91,7 @@ class GoalChecks:
         ``goal_votes`` (H, W). With ``anchor_outvotes_goal`` a cell where goal pixels landed
         at least as often is the goal's (a few of its pixels read as the anchor), not the
         anchor's."""
-        ticks = self.config.anchor_ticks or self.config.confirm_ticks
+        ticks = self.config.anchor_ticks or self.confirm_ticks
         anchor = self.anchor_votes >= ticks  # (H, W)
         if self.config.anchor_outvotes_goal:
             anchor &= self.anchor_votes > goal_votes
@@ -88,7 +102,7 @@ class GoalChecks:
         ``goal_votes`` (H, W): ``confirm_ticks`` of them; with ``goal_yields_to_anchor`` a
         cell where anchor pixels landed on more ticks is the anchor's (the goal head read the
         anchor, e.g. the table of "the chair next to the table"), not the goal's."""
-        confirmed = goal_votes >= self.config.confirm_ticks  # (H, W)
+        confirmed = goal_votes >= self.confirm_ticks  # (H, W)
         if self.config.goal_yields_to_anchor and self.has_anchor:
             confirmed &= self.anchor_votes <= goal_votes
         return confirmed

@@ -2,24 +2,26 @@
 
 The GR field plans on 0.15 m cells, so a gap a few centimetres wider than the robot is either
 closed (at the real radius) or opened for a robot much thinner than the real one (the
-navigator's ``tight_radius``), whose path then runs into the furniture it hugs. This planner
-keeps the obstacle points of every depth frame on fine cells (``local_cell``, 0.025 m by
-default) and, while the navigator plans thin, re-plans the way out at the real radius:
+navigator's ``tight.radius``), whose path then runs into the furniture it hugs. This planner
+keeps the obstacle points of every depth frame on fine cells (``cell``, 0.025 m by default) and,
+while the navigator plans thin, re-plans the way out at the real radius (its settings are
+``model.navigator.local_planner.*``,
+:class:`~vla_gr.core.gr_field.navigator_config.LocalPlannerConfig`):
 
-1. a window of ``local_window`` metres around the robot; a fine cell is free when it is
-   farther than ``robot_radius + local_margin`` from every fine cell with at least
-   ``local_min_hits`` obstacle points (coarse occupied cells without any point, the
-   navigator's marked obstacles, are filled whole);
+1. a window of ``window`` metres around the robot; a fine cell is free when it is farther
+   than ``robot_radius + margin`` from every fine cell with at least ``min_hits`` obstacle
+   points (coarse occupied cells without any point, the navigator's marked obstacles, are
+   filled whole);
 2. fast marching from the robot over the free fine cells gives the path length L to each;
 3. the coarse field's travel time T to the goal or frontier (the thin robot's plan) scores
    each reachable fine cell on the window's rim, and each source of the field (T = 0)
-   inside it, by L + T; the best, if it gets the robot at least ``local_min_progress``
-   metres nearer in T, is the local target;
+   inside it, by L + T; the best, if it gets the robot at least ``min_progress`` metres
+   nearer in T, is the local target;
 4. the path to it descends a second fast-marching field from the robot, slower near
-   obstacles (``local_clearance_cost``), so it runs through the middle of a gap.
+   obstacles (``clearance_cost``), so it runs through the middle of a gap.
 
 Unseen fine cells count as free (the depth check of the follower still guards). A plan is
-followed for up to ``local_replan_ticks`` ticks while the robot keeps to it.
+followed for up to ``replan_ticks`` ticks while the robot keeps to it.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ import torch
 from scipy import ndimage
 
 from vla_gr.core.gr_field.mapping import count_obstacle_points
+from vla_gr.core.gr_field.navigator_config import LocalPlannerConfig
 from vla_gr.geometry.fast_marching import extract_path, geodesic_distance
 from vla_gr.geometry.grid import GridSpec
 
@@ -43,18 +46,25 @@ class LocalPlanner:
 
     Args:
         grid: the coarse map's grid; the fine cells split each of its cells k x k,
-            k = round(cell_size / local_cell).
+            k = round(cell_size / config.cell).
         robot_radius: metres, the real robot's.
-        config: the navigator's config (its ``local_*`` settings and obstacle band are read).
+        config: its settings (``model.navigator.local_planner``).
         floor_height, robot_height: the obstacle band of the depth points (metres).
     """
 
-    def __init__(self, grid: GridSpec, robot_radius: float, config, floor_height, robot_height):
+    def __init__(
+        self,
+        grid: GridSpec,
+        robot_radius: float,
+        config: LocalPlannerConfig,
+        floor_height: float,
+        robot_height: float,
+    ) -> None:
         self.grid = grid
         self.config = config
-        self.k = max(1, round(grid.cell_size / config.local_cell))
+        self.k = max(1, round(grid.cell_size / config.cell))
         self.cell = grid.cell_size / self.k  # metres per fine cell
-        self.radius = robot_radius + config.local_margin
+        self.radius = robot_radius + config.margin
         self.band = (floor_height, robot_height)
         self.hits = torch.zeros(1, 1, grid.height * self.k, grid.width * self.k)
         self._path: np.ndarray | None = None  # (N, 2) the path being followed
@@ -73,16 +83,15 @@ class LocalPlanner:
         self, robot_xy: np.ndarray, travel: np.ndarray, occupied: np.ndarray
     ) -> np.ndarray | None:
         """The path to follow this tick, (N, 2) from the grid corner, or None: the last plan's
-        rest while it is younger than ``local_replan_ticks``, the robot within
-        ``local_off_path`` of it and its end still ``local_min_progress`` away; else a new
-        :meth:`plan` (arguments as there)."""
+        rest while it is younger than ``replan_ticks``, the robot within ``off_path`` of it and
+        its end still ``min_progress`` away; else a new :meth:`plan` (arguments as there)."""
         cfg = self.config
-        if self._path is not None and self._age < cfg.local_replan_ticks:
+        if self._path is not None and self._age < cfg.replan_ticks:
             gaps = np.linalg.norm(self._path - robot_xy, axis=-1)  # (N,)
             rest = self._path[int(np.argmin(gaps)) :]  # (M, 2)
             ahead = float(np.linalg.norm(rest[-1] - robot_xy))
-            on_path = gaps.min() <= cfg.local_off_path and len(rest) > 1
-            if on_path and ahead >= cfg.local_min_progress:
+            on_path = gaps.min() <= cfg.off_path and len(rest) > 1
+            if on_path and ahead >= cfg.min_progress:
                 self._age += 1
                 return rest
         t0 = time.perf_counter()
@@ -108,12 +117,12 @@ class LocalPlanner:
             occupied: (H, W) bool, the coarse occupied cells.
         """
         cfg, k, f = self.config, self.k, self.cell
-        n = int(math.ceil(cfg.local_window / f))
+        n = int(math.ceil(cfg.window / f))
         H, W = self.hits.shape[-2:]
         rr, rc = int(robot_xy[1] / f), int(robot_xy[0] / f)  # robot's fine cell
         r0, r1 = max(rr - n, 0), min(rr + n + 1, H)
         c0, c1 = max(rc - n, 0), min(rc + n + 1, W)
-        points = self.hits[0, 0, r0:r1, c0:c1].numpy() >= cfg.local_min_hits  # (h, w) obstacles
+        points = self.hits[0, 0, r0:r1, c0:c1].numpy() >= cfg.min_hits  # (h, w) obstacles
         rows, cols = np.arange(r0, r1) // k, np.arange(c0, c1) // k  # coarse cell of each
         coarse_occ = occupied[np.ix_(rows, cols)]  # (h, w)
         block = self.hits[0, 0, rows[0] * k : (rows[-1] + 1) * k, cols[0] * k : (cols[-1] + 1) * k]
@@ -125,11 +134,11 @@ class LocalPlanner:
         free = clearance > self.radius
         here = (rr - r0, rc - c0)
         yy, xx = np.ogrid[r0:r1, c0:c1]
-        near = (yy - rr) ** 2 + (xx - rc) ** 2 <= (cfg.local_start_radius / f) ** 2
+        near = (yy - rr) ** 2 + (xx - rc) ** 2 <= (cfg.start_radius / f) ** 2
         free |= near & ~obstacle  # the robot may leave where it stands
-        # slower near obstacles: 1 + local_clearance_cost at the limit, 1 from 0.15 m beyond
+        # slower near obstacles: 1 + clearance_cost at the limit, 1 from 0.15 m beyond
         spare = np.clip(1.0 - (clearance - self.radius) / 0.15, 0.0, 1.0)  # (h, w)
-        cost = 1.0 + cfg.local_clearance_cost * spare
+        cost = 1.0 + cfg.clearance_cost * spare
         source = np.zeros_like(free)
         source[here] = True
         # the target by length (a cost above 1 would make stopping short of a gap look best),
@@ -147,7 +156,7 @@ class LocalPlanner:
         best = np.unravel_index(np.nanargmin(score), score.shape)
         t_here = travel[rr // k, rc // k]
         progress = (t_here - T[best]) if np.isfinite(t_here) else math.inf
-        if progress < cfg.local_min_progress or length[best] < cfg.local_min_progress:
+        if progress < cfg.min_progress or length[best] < cfg.min_progress:
             return None
         D = geodesic_distance(cost, source, ~free, f)  # (h, w) travel cost from the robot
         start = (np.array([best[1], best[0]]) + 0.5) * f  # (2,) metric within the window

@@ -9,6 +9,9 @@ noise it forgets, cells it counts as seen.
   jamb) are dropped, so that one stray point never closes a door for good;
 - visited: unseen cells around the robot count as seen free, so frontiers in the camera's blind
   spots cannot pull the robot back and forth.
+
+Its settings are ``model.navigator.map_edits``
+(:class:`~vla_gr.core.gr_field.navigator_config.MapEditsConfig`).
 """
 
 from __future__ import annotations
@@ -19,16 +22,17 @@ import numpy as np
 import torch
 
 from vla_gr.core.gr_field.mapping import points_to_cells
+from vla_gr.core.gr_field.navigator_config import MapEditsConfig
 from vla_gr.core.gr_field.planning import GRField
 
 __all__ = ["MapEdits"]
 
 
 class MapEdits:
-    """Edits of ``field``'s batch-1 map; ``config`` is the navigator's (``virtual_obstacle_hits``,
-    ``noise_max_hits``, ``noise_free_ratio``)."""
+    """Edits of ``field``'s batch-1 map with the settings ``config`` (``model.navigator.map_edits``:
+    ``obstacle_hits``, ``noise_max_hits``, ``noise_free_ratio``, ``visited_clear_radius``)."""
 
-    def __init__(self, field: GRField, config) -> None:
+    def __init__(self, field: GRField, config: MapEditsConfig) -> None:
         self.field, self.config = field, config
         self.virtual: list[torch.Tensor] = []  # (D, 2) cells of each virtual obstacle
 
@@ -49,14 +53,14 @@ class MapEdits:
         cells = self.disk_cells(xy, radius)  # (D, 2)
         if self.field.batch_size == 0 or len(cells) == 0:
             return
-        self.field.add_obstacle_evidence(cells, self.config.virtual_obstacle_hits)
+        self.field.add_obstacle_evidence(cells, self.config.obstacle_hits)
         if not lasting:
             self.virtual.append(cells)
 
     def clear_virtual_obstacles(self) -> None:
         """Take back the evidence of every virtual obstacle (seen obstacles stay)."""
         for cells in self.virtual:
-            self.field.add_obstacle_evidence(cells, -self.config.virtual_obstacle_hits)
+            self.field.add_obstacle_evidence(cells, -self.config.obstacle_hits)
         self.virtual.clear()
 
     def forget_noise(self) -> None:
@@ -65,11 +69,13 @@ class MapEdits:
             return
         self.field.forget_obstacle_noise(self.config.noise_max_hits, self.config.noise_free_ratio)
 
-    def mark_visited(self, xy: np.ndarray, radius: float) -> None:
-        """Count the unseen cells within ``radius`` of ``xy`` (2,) as seen free (one hit).
+    def mark_visited(self, xy: np.ndarray) -> None:
+        """Count the unseen cells within ``visited_clear_radius`` of ``xy`` (2,) as seen free
+        (one hit).
 
         Obstacle evidence still wins over it, so a cell seen occupied stays occupied.
         """
+        radius = self.config.visited_clear_radius
         if radius <= 0 or self.field.batch_size == 0:
             return
         self.field.mark_unseen_free(self.disk_cells(xy, radius))  # (D, 2) cells

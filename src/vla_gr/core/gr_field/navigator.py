@@ -5,54 +5,58 @@ takes depth, pose and a per-pixel goal likelihood (from whatever grounds the ins
 never sees privileged state) and returns a :class:`NavPlan`: waypoints in the robot frame or an
 open-loop command, the mode, a goal confidence and a STOP request.
 
-Modes and transitions (checked in this order every tick)::
+Modes and transitions (checked in this order every tick; settings are named below
+``model.navigator``, :mod:`vla_gr.core.gr_field.navigator_config`)::
 
-    look_around  turn in place until look_around_angle is covered (or, unless
-                 look_around_completes, a goal is confirmed)
+    look_around  turn in place until look_around.angle is covered (or, unless
+                 look_around.completes, a goal is confirmed)
     recover      blocked or stuck: (a virtual obstacle ahead,) back up, turn; then re-plan
-    stop         a confirmed goal cell within stop_distance (stop_distance_at_end when the
-                 path ends here), in line of sight, goal pixels in view now and (with
-                 stop_visible_threshold) the goal head's "goal visible" probability this high
-    verify       the same but not (yet) verified: turn towards it (verify_steps at most); then
-                 stop anyway, or with stop_visible_threshold reject that goal and explore on;
-                 a goal that fails a goal check (room, category, relation) is rejected
-                 before either
+    stop         a confirmed goal cell within approach.stop_distance (stop_distance_at_end
+                 when the path ends here), in line of sight, goal pixels in view now and (with
+                 approach.stop_visible_threshold) the goal head's "goal visible" probability
+                 this high
+    verify       the same but not (yet) verified: turn towards it (approach.verify_steps at
+                 most); then stop anyway, or with stop_visible_threshold reject that goal and
+                 explore on; a goal that fails a goal check (room, category, relation) is
+                 rejected before either
     approach     a confirmed goal: follow the field's geodesic to its stand-off; a goal the
-                 robot has stood at the end of the path to for dead_end_steps without being
-                 able to stop (not within stop distance in line of sight) is rejected,
-                 and so is one the field has found no way to for unreachable_steps
+                 robot has stood at the end of the path to for approach.dead_end_steps without
+                 being able to stop (not within stop distance in line of sight) is rejected,
+                 and so is one the field has found no way to for approach.unreachable_steps
     explore      no confirmed goal: follow the field's geodesic to the frontier
 
 Multi-frame confirmation: a map cell becomes a goal for the field (``GRField.update``'s
-``goal_gate``) only after goal pixels landed in it on ``confirm_ticks`` different ticks, so a
-single false positive never attracts. Approach-and-verify: with ``stop_visible_threshold`` a
-STOP also needs the goal head's per-frame "goal visible" probability, seen from close range; a
-goal that never reaches it within ``verify_steps`` is rejected: its cells lose their votes and
-cast none again, and the robot explores on. Goal checks
-(:mod:`vla_gr.core.gr_field.goal_checks`): near a confirmed goal, the room the robot stands in,
-the category the goal pixels show and, for a relation, an anchor mapped near the goal can
-reject it the same way. The same happens to a dead end: a goal whose path
-ends where the robot stands but which is not in line of sight within the stop distance (the
-head fired on something behind furniture or a wall), which would otherwise hold the robot
-there until the step budget runs out. Blocked: the plan wanted to drive ahead (its pursuit
-point within ``drive_bearing``) on every tick of the last ``blocked_steps`` control steps but
-the robot moved less than ``blocked_distance`` (Stubborn's collision test): a virtual obstacle
-is marked in front (the path then bends around it), the robot backs up and turns. Stuck: less
-than ``stuck_distance`` over ``stuck_steps`` in explore/approach: back up and turn. No path
-for ``no_path_steps`` (a path found in between counts only once held for ``path_hold_steps``):
-the virtual obstacles are forgotten (they may close a door); if there
-are none, the field plans for a thinner robot (``tight_radius``, at ``tight_speed``) for
-``tight_steps``; with ``local_planner`` the way out is then re-planned at the real radius on
-fine cells of the depth points (:mod:`vla_gr.core.gr_field.local_planner`) and followed as a
-precise plan; after that, back up and turn. Trapped (``trap_recoveries`` recoveries within
-``trap_radius`` of one another: planning thinner and forgetting virtual obstacles keep sending
-the robot into the same gap): the way ahead is closed for good by an obstacle that is never
-forgotten, or, with ``trap_rejects_goal``, a committed goal is rejected instead.
+``goal_gate``) only after goal pixels landed in it on ``confirmation.ticks`` different ticks,
+so a single false positive never attracts. Approach-and-verify: with
+``approach.stop_visible_threshold`` a STOP also needs the goal head's per-frame "goal visible"
+probability, seen from close range; a goal that never reaches it within
+``approach.verify_steps`` is rejected: its cells lose their votes and cast none again, and the
+robot explores on. Goal checks (:mod:`vla_gr.core.gr_field.goal_checks`, ``goal_checks``): near
+a confirmed goal, the room the robot stands in, the category the goal pixels show and, for a
+relation, an anchor mapped near the goal can reject it the same way. The same happens to a dead
+end: a goal whose path ends where the robot stands but which is not in line of sight within the
+stop distance (the head fired on something behind furniture or a wall), which would otherwise
+hold the robot there until the step budget runs out. Blocked: the plan wanted to drive ahead
+(its pursuit point, at the follower's ``lookahead``, within ``recovery.drive_bearing``) on
+every tick of the last ``recovery.blocked_steps`` control steps but the robot moved less than
+``recovery.blocked_distance`` (Stubborn's collision test): a virtual obstacle is marked in
+front (the path then bends around it), the robot backs up and turns. Stuck: less than
+``recovery.stuck_distance`` over ``recovery.stuck_steps`` in explore/approach: back up and
+turn. No path for ``recovery.no_path_steps`` (a path found in between counts only once held
+for ``recovery.path_hold_steps``): the virtual obstacles are forgotten (they may close a door);
+if there are none, the field plans for a thinner robot (``tight.radius``, at ``tight.speed``)
+for ``tight.steps``; with ``local_planner.enabled`` the way out is then re-planned at the real
+radius on fine cells of the depth points (:mod:`vla_gr.core.gr_field.local_planner`) and
+followed as a precise plan; after that, back up and turn. Trapped (``traps.recoveries``
+recoveries within ``traps.radius`` of one another: planning thinner and forgetting virtual
+obstacles keep sending the robot into the same gap): the way ahead is closed for good by an
+obstacle that is never forgotten, or, with ``traps.rejects_goal``, a committed goal is
+rejected instead.
 
-Map hygiene, every tick (:mod:`vla_gr.core.gr_field.map_edits`): unseen cells within
-``visited_clear_radius`` of the robot count as seen (frontiers in the camera's blind spots stop
-pulling the robot back and forth), and obstacle cells with a few hits that free space outvotes
-are forgotten (``noise_*``).
+Map hygiene, every tick (:mod:`vla_gr.core.gr_field.map_edits`, ``map_edits``): unseen cells
+within ``map_edits.visited_clear_radius`` of the robot count as seen (frontiers in the camera's
+blind spots stop pulling the robot back and forth), and obstacle cells with a few hits that
+free space outvotes are forgotten (``map_edits.noise_*``).
 Durations are in control steps and become ticks through ``plan_every``.
 """
 
@@ -95,23 +99,37 @@ class NavPlan:
     command: tuple[float, float] | None = None  # open-loop (v, w) fractions until the next tick
     goal_distance: float = math.inf  # m from the robot to the nearest confirmed goal cell
     max_speed: float = 1.0  # cap of the linear fraction the follower may use
-    # a fine local path (navigator.local_planner): the follower pursues nearer along it and
+    # a fine local path (navigator.local_planner.enabled): the follower pursues nearer along it and
     # lets the robot's width through without side margin
     precise: bool = False
 
 
 class Navigator:
-    """S2 behaviour on a batch-1 GR field (see module docstring)."""
+    """S2 behaviour on a batch-1 GR field (see module docstring).
+
+    Args:
+        config: the navigator's settings (``model.navigator``); each collaborator is handed
+            its own section (goal checks, local planner, map edits).
+        field_config: the GR field's (``model.gr_field``).
+        plan_every: control steps per tick (the ``*_steps`` durations become ticks).
+        lookahead: metres, the follower's lookahead (``model.pursuit.lookahead``): the drive
+            test asks whether the point it pursues lies within ``recovery.drive_bearing``.
+    """
 
     def __init__(
         self,
         config: NavigatorConfig | None = None,
         field_config: GRFieldConfig | None = None,
         plan_every: int = 1,
+        *,
+        lookahead: float,
     ) -> None:
         if int(plan_every) < 1:
             raise ValueError(f"plan_every={plan_every} must be >= 1 (control steps per tick)")
+        if not lookahead > 0:
+            raise ValueError(f"lookahead={lookahead} must be > 0 m (model.pursuit.lookahead)")
         self.plan_every = int(plan_every)  # the *_steps durations of the config become ticks
+        self.lookahead = float(lookahead)  # the follower's, for the drive test
         self.config = config or NavigatorConfig()
         self.field_config = field_config or GRFieldConfig()
         self.field = GRField(dataclasses.replace(self.field_config))  # its own copy
@@ -119,11 +137,11 @@ class Navigator:
             LocalPlanner(
                 self.field.grid,
                 self.field_config.robot_radius,
-                self.config,
+                self.config.local_planner,
                 self.field_config.floor_height,
                 self.field_config.robot_height,
             )  # fmt: skip
-            if self.config.local_planner
+            if self.config.local_planner.enabled
             else None
         )  # its fine cells are allocated once and cleared per episode
         self.reset()
@@ -145,12 +163,14 @@ class Navigator:
         self.turned = 0.0
         self.last_yaw: float | None = None
         self.positions: deque[np.ndarray] = deque(
-            maxlen=self.steps_to_ticks(self.config.stuck_steps) + 1
+            maxlen=self.steps_to_ticks(self.config.recovery.stuck_steps) + 1
         )  # (2,) per driving tick
         self.drives: deque[tuple[np.ndarray, bool]] = deque(
-            maxlen=self.steps_to_ticks(self.config.blocked_steps) + 1
+            maxlen=self.steps_to_ticks(self.config.recovery.blocked_steps) + 1
         )  # ((2,), the plan drove ahead) per driving tick
-        self.map_edits = MapEdits(self.field, self.config)  # virtual obstacles, noise, visited
+        self.map_edits = MapEdits(
+            self.field, self.config.map_edits
+        )  # virtual obstacles, noise, visited
         self.field.set_planning_radius(self.field_config.robot_radius)
         self._radius = self.field_config.robot_radius  # the planning radius outside tight mode
         self.tight_left = 0
@@ -168,7 +188,9 @@ class Navigator:
         self.ever_seen_goal = False
         self.tick_goal_pixels = 0  # goal pixels of this tick that landed on the map
         self.stop_evidence: dict[str, float] = {}  # what S2 saw on the tick it asked to STOP
-        self.checks = GoalChecks(self.config, shape, self.field.cell_size)
+        self.checks = GoalChecks(
+            self.config.goal_checks, self.config.confirmation.ticks, shape, self.field.cell_size
+        )
         if self.local is not None:
             self.local.reset()
         self._tick_frame, self._projected = None, None  # this tick's depth, pose; their cells
@@ -194,15 +216,17 @@ class Navigator:
             goal_likelihood: (H, W) per-pixel probability in [0, 1] that the pixel shows the
                 instructed object.
             goal_visible: probability that the instructed object is in view at all (the goal
-                head's per-frame output); below ``visible_threshold`` the tick casts no votes.
+                head's per-frame output); below ``confirmation.visible_threshold`` the tick casts
+                no votes.
             room_match: probability that the robot stands in a room of the type the
-                instruction names (1 when it names none); see ``room_reject_threshold``.
+                instruction names (1 when it names none); see
+                ``goal_checks.room_reject_threshold``.
             object_match: probability that this frame's goal pixels show an object of the
                 instructed category (None: no evidence this tick); see
-                ``object_reject_threshold``.
+                ``goal_checks.object_reject_threshold``.
             anchor_likelihood: (H, W) per-pixel probability of the category a relation
                 instruction names as its anchor; None when it names none. See
-                ``relation_distance``.
+                ``goal_checks.relation_distance``.
         """
         t0 = time.perf_counter()
         cfg = self.config
@@ -211,7 +235,7 @@ class Navigator:
         )  # (1, H, W)
         pose = torch.as_tensor(np.asarray(obs["pose"], np.float32)).reshape(1, 3)  # (1, 3)
         like = torch.as_tensor(np.asarray(goal_likelihood, np.float32)).reshape(depth.shape)
-        votes_allowed = float(goal_visible) >= cfg.visible_threshold
+        votes_allowed = float(goal_visible) >= cfg.confirmation.visible_threshold
         self.checks.observe(room_match, object_match)
         self.tick_goal_pixels = 0  # set by _vote; stays 0 on a tick that casts no votes
         self._tick_frame, self._projected = (depth, pose), None  # projected on demand
@@ -227,7 +251,7 @@ class Navigator:
                 self.field.set_planning_radius(self._radius)
         if self.local is not None:
             self.local.observe(*self._project()[2:])
-        self.map_edits.mark_visited(pose[0, :2].numpy(), cfg.visited_clear_radius)
+        self.map_edits.mark_visited(pose[0, :2].numpy())
         self.map_edits.forget_noise()
         out = self.field.update({"depth": depth, "pose": pose}, like, goal_gate=gate)
         self.last_output = out
@@ -237,13 +261,13 @@ class Navigator:
         robot_xy = maps.robot_xy[0].numpy()  # (2,) from the grid corner
         distance, nearest = self._goal_distance(goal_cells, robot_xy)
         votes = float(self.goal_votes.max()) if self.goal_votes.any() else 0.0
-        confidence = min(1.0, votes / cfg.confirm_ticks)
+        confidence = min(1.0, votes / cfg.confirmation.ticks)
         p = pose[0].numpy().astype(np.float64)  # (3,)
         plan = self._decide(out, p, robot_xy, visible, goal_visible, distance, nearest)
         plan.goal_confidence, plan.goal_distance = confidence, distance
         if plan.stop and not self.stop_evidence:
             self.stop_evidence = self._evidence(goal_cells, goal_visible, like, distance, nearest)
-        plan.max_speed = cfg.tight_speed if self.tight_left > 0 else 1.0
+        plan.max_speed = cfg.tight.speed if self.tight_left > 0 else 1.0
         self.mode = plan.mode
         self.ticks += 1
         self.last_latency = time.perf_counter() - t0
@@ -257,28 +281,29 @@ class Navigator:
             self.turned += abs(wrap_angle(yaw - self.last_yaw))
         self.last_yaw = yaw
 
-        looking = self.mode == "look_around" and (cfg.look_around_completes or not self.committed)
-        if looking and self.turned < cfg.look_around_angle:
+        looking = self.mode == "look_around" and (cfg.look_around.completes or not self.committed)
+        if looking and self.turned < cfg.look_around.angle:
             return self._command_plan("look_around", (0.0, cfg.turn_rate))
+        rec, app = cfg.recovery, cfg.approach
         if self.recover_left > 0:
             self.recover_left -= 1
-            backing = self.recover_left >= self.steps_to_ticks(cfg.recover_turn_steps)
-            command = (-cfg.recover_back_speed, 0.0) if backing else (0.0, cfg.turn_rate)
+            backing = self.recover_left >= self.steps_to_ticks(rec.turn_steps)
+            command = (-rec.back_speed, 0.0) if backing else (0.0, cfg.turn_rate)
             return self._command_plan("recover", command)
 
         at_end = bool(out.has_path[0]) and float(out.waypoints[0, -1].norm()) <= (
-            cfg.path_end_distance
+            app.path_end_distance
         )
-        near = distance <= (cfg.stop_distance_at_end if at_end else cfg.stop_distance)
+        near = distance <= (app.stop_distance_at_end if at_end else app.stop_distance)
         if self.committed and near:
             failed = self.checks.failed(lambda: self._goal_component(nearest), self.goal_votes)
             if failed is not None:
                 return self._abandon_goal(nearest, failed)
-            verified = float(goal_visible) >= cfg.stop_visible_threshold
+            verified = float(goal_visible) >= app.stop_visible_threshold
             if visible and verified:
                 return NavPlan(np.zeros((0, 2)), "stop", 0.0, True)
-            if self.verify_count >= self.steps_to_ticks(cfg.verify_steps):
-                if cfg.stop_visible_threshold == 0.0:
+            if self.verify_count >= self.steps_to_ticks(app.verify_steps):
+                if app.stop_visible_threshold == 0.0:
                     return NavPlan(np.zeros((0, 2)), "stop", 0.0, True)
                 return self._abandon_goal(nearest, "verify")
             self.verify_count += 1
@@ -287,7 +312,7 @@ class Navigator:
             return self._command_plan("verify", (0.0, turn))
         self.verify_count = 0
         self.dead_end_count = self.dead_end_count + 1 if self.committed and at_end else 0
-        if cfg.dead_end_steps and self.dead_end_count >= self.steps_to_ticks(cfg.dead_end_steps):
+        if app.dead_end_steps and self.dead_end_count >= self.steps_to_ticks(app.dead_end_steps):
             return self._abandon_goal(nearest, "dead_end")
 
         mode = "approach" if self.committed else "explore"
@@ -300,30 +325,30 @@ class Navigator:
             self.drives.append((pose[:2].copy(), False))
             self.path_streak = 0
             self.no_path_count += 1
-            if self.no_path_count >= self.steps_to_ticks(cfg.no_path_steps):
+            if self.no_path_count >= self.steps_to_ticks(rec.no_path_steps):
                 self.no_path_count = 0
                 if self.map_edits.virtual:
                     self.map_edits.clear_virtual_obstacles()
-                elif self.tight_left == 0 and cfg.tight_radius < self._radius:
+                elif self.tight_left == 0 and cfg.tight.radius < self._radius:
                     self._start_tight()
                 else:
                     return self._start_recovery(pose, mark=False, nearest=nearest)
             return self._command_plan(mode, (0.0, cfg.turn_rate))
         self.path_streak += 1
-        if self.path_streak >= self.steps_to_ticks(cfg.path_hold_steps):
+        if self.path_streak >= self.steps_to_ticks(rec.path_hold_steps):
             self.no_path_count = 0
         # a confirmed goal the field cannot reach (it falls back to the frontier): the goal's
         # stand-off may sit in a passage the conservative inflation closes; plan thinner
         unreachable = self.committed and not bool(out.goal_seen[0])
         self.unreachable_count = self.unreachable_count + 1 if unreachable else 0
         self.out_of_reach = self.out_of_reach + 1 if unreachable else 0
-        if cfg.unreachable_steps and self.out_of_reach >= self.steps_to_ticks(
-            cfg.unreachable_steps
+        if app.unreachable_steps and self.out_of_reach >= self.steps_to_ticks(
+            app.unreachable_steps
         ):
             self.out_of_reach = 0
             return self._abandon_goal(nearest, "unreachable")
         if (
-            self.unreachable_count >= self.steps_to_ticks(cfg.no_path_steps)
+            self.unreachable_count >= self.steps_to_ticks(rec.no_path_steps)
             and self.tight_left == 0
         ):
             self._start_tight()
@@ -331,8 +356,8 @@ class Navigator:
         local = self._local_path(pose, robot_xy) if self.tight_left > 0 else None
         if local is not None:
             waypoints = local
-        target = lookahead_target(waypoints, cfg.pursuit_lookahead)  # (2,) robot frame
-        ahead = abs(math.atan2(target[1], target[0])) < cfg.drive_bearing
+        target = lookahead_target(waypoints, self.lookahead)  # (2,) robot frame
+        ahead = abs(math.atan2(target[1], target[0])) < rec.drive_bearing
         self.drives.append((pose[:2].copy(), bool(ahead and np.hypot(*target) > 0.2)))
         return NavPlan(waypoints, mode, 0.0, False, precise=local is not None)
 
@@ -437,7 +462,7 @@ class Navigator:
     def _pixel_cells(self, probability: torch.Tensor) -> np.ndarray:
         """Distinct cells (M, 2) that this tick's pixels with ``probability`` (1, N) >=
         pixel_threshold land in, outside rejected goals."""
-        hits = probability >= self.config.pixel_threshold  # (1, N)
+        hits = probability >= self.config.confirmation.pixel_threshold  # (1, N)
         if not bool(hits.any()):
             return np.zeros((0, 2), np.int64)
         cells, usable = self._project()[:2]
@@ -448,11 +473,11 @@ class Navigator:
     def _vote(self, like) -> bool:
         """Add one vote to every cell goal pixels (``like`` (1, H, W)) land in this tick; True
         if the goal is in view."""
-        hits = (like >= self.config.pixel_threshold).reshape(1, -1)  # (1, N)
+        hits = (like >= self.config.confirmation.pixel_threshold).reshape(1, -1)  # (1, N)
         if not bool(hits.any()):
             return False
         self.tick_goal_pixels = int((hits & self._project()[1]).sum())
-        visible = self.tick_goal_pixels >= self.config.min_goal_pixels
+        visible = self.tick_goal_pixels >= self.config.confirmation.min_goal_pixels
         rc = self._pixel_cells(like.reshape(1, -1))  # (M, 2)
         if self.tick_goal_pixels:
             self.goal_votes[rc[:, 0], rc[:, 1]] += 1
@@ -467,7 +492,8 @@ class Navigator:
         rows, cols = np.nonzero(goal_cells)
         centres = (np.stack([cols, rows], axis=-1) + 0.5) * h  # (M, 2) x, y from the corner
         dist = np.linalg.norm(centres - robot_xy, axis=-1)  # (M,)
-        near_goal = ndimage.binary_dilation(goal_cells, iterations=self.config.goal_halo_cells)
+        halo = self.config.approach.goal_halo_cells
+        near_goal = ndimage.binary_dilation(goal_cells, iterations=halo)
         occupied = self.field.maps.occupied[0].numpy() & ~near_goal  # (H, W)
         for k in np.argsort(dist)[:8]:
             if self._line_of_sight(robot_xy, centres[k], occupied):
@@ -484,8 +510,9 @@ class Navigator:
         return not occupied[rc[:, 0], rc[:, 1]].any()
 
     def _stuck(self) -> bool:
-        """Moved less than stuck_distance over the last stuck_steps (window full)."""
-        cfg = self.config
+        """Moved less than recovery.stuck_distance over the last recovery.stuck_steps (window
+        full)."""
+        cfg = self.config.recovery
         if len(self.positions) <= self.steps_to_ticks(cfg.stuck_steps):
             return False
         pts = np.stack(self.positions)  # (T, 2)
@@ -493,15 +520,15 @@ class Navigator:
         return bool(spread < cfg.stuck_distance)
 
     def _start_tight(self) -> None:
-        """Plan for a robot of ``tight_radius`` for the next ``tight_steps``."""
+        """Plan for a robot of ``tight.radius`` for the next ``tight.steps``."""
         self.unreachable_count = 0
-        if self.config.tight_radius < self._radius:
-            self.field.set_planning_radius(self.config.tight_radius)
-            self.tight_left = self.steps_to_ticks(self.config.tight_steps)
+        if self.config.tight.radius < self._radius:
+            self.field.set_planning_radius(self.config.tight.radius)
+            self.tight_left = self.steps_to_ticks(self.config.tight.steps)
 
     def _blocked(self) -> bool:
         """The plan drove ahead on every tick of a full window, and the robot barely moved."""
-        cfg = self.config
+        cfg = self.config.recovery
         if len(self.drives) <= self.steps_to_ticks(cfg.blocked_steps):
             return False
         if not all(drive for _, drive in list(self.drives)[:-1]):
@@ -512,13 +539,13 @@ class Navigator:
     def _start_recovery(self, pose: np.ndarray, mark: bool, nearest=None) -> NavPlan:
         """(Mark a virtual obstacle ahead,) then back up and turn (Stubborn's untrap); when
         trapped, first give up what the robot heads for (see module docstring)."""
-        cfg = self.config
+        cfg, rec, traps = self.config, self.config.recovery, self.config.traps
         self.recoveries += 1
-        if cfg.trap_recoveries:
+        if traps.recoveries:
             self.recovery_spots.append(pose[:2].copy())
             spots = np.stack(self.recovery_spots)  # (R, 2)
-            if (np.linalg.norm(spots - pose[:2], axis=-1) <= cfg.trap_radius).sum() >= (
-                cfg.trap_recoveries
+            if (np.linalg.norm(spots - pose[:2], axis=-1) <= traps.radius).sum() >= (
+                traps.recoveries
             ):
                 self._give_up(pose, nearest)
         self.positions.clear()
@@ -527,31 +554,31 @@ class Navigator:
             self.local.forget()
         if mark:
             heading = np.array([math.cos(pose[2]), math.sin(pose[2])])
-            centre = pose[:2] + cfg.virtual_obstacle_distance * heading  # (2,) map frame
-            self.map_edits.mark_obstacle(centre, cfg.virtual_obstacle_radius)
-        self.recover_left = self.steps_to_ticks(cfg.recover_back_steps) + self.steps_to_ticks(
-            cfg.recover_turn_steps
+            centre = pose[:2] + rec.virtual_obstacle_distance * heading  # (2,) map frame
+            self.map_edits.mark_obstacle(centre, rec.virtual_obstacle_radius)
+        self.recover_left = self.steps_to_ticks(rec.back_steps) + self.steps_to_ticks(
+            rec.turn_steps
         )
         logger.debug("navigator: stuck at %s, recovery %d", pose, self.recoveries)
         if self.recover_left == 0:
             return self._command_plan("recover", (0.0, 0.0))
         self.recover_left -= 1
-        backing = self.recover_left >= self.steps_to_ticks(cfg.recover_turn_steps)
-        command = (-cfg.recover_back_speed, 0.0) if backing else (0.0, cfg.turn_rate)
+        backing = self.recover_left >= self.steps_to_ticks(rec.turn_steps)
+        command = (-rec.back_speed, 0.0) if backing else (0.0, cfg.turn_rate)
         return self._command_plan("recover", command)
 
     def _give_up(self, pose: np.ndarray, nearest) -> None:
         """Trapped: reject the committed goal (``nearest`` (2,), its cell centre from the grid
-        corner) with ``trap_rejects_goal``, else close the way ahead for good."""
+        corner) with ``traps.rejects_goal``, else close the way ahead for good."""
         self.traps += 1
         self.recovery_spots.clear()
-        if self.committed and nearest is not None and self.config.trap_rejects_goal:
+        traps = self.config.traps
+        if self.committed and nearest is not None and traps.rejects_goal:
             self._reject_goal(nearest, "trap")
             return
-        cfg = self.config
         heading = np.array([math.cos(pose[2]), math.sin(pose[2])])
-        ahead = cfg.virtual_obstacle_distance + cfg.trap_obstacle_radius
+        ahead = self.config.recovery.virtual_obstacle_distance + traps.obstacle_radius
         self.map_edits.mark_obstacle(
-            pose[:2] + ahead * heading, cfg.trap_obstacle_radius, lasting=True
+            pose[:2] + ahead * heading, traps.obstacle_radius, lasting=True
         )
         logger.debug("navigator: trapped at %s, the way ahead is closed", pose)

@@ -4,7 +4,7 @@ The goal head marks the object an instruction means from one frame. When it is w
 often marks an object of another category: the anchor of a relation ("the chair near the
 *plant*"), or a piece of the instructed colour. Near a confirmed goal, the navigator asks how
 likely the pixels the goal head marks are of the instructed category; a confident "no" rejects
-that goal and exploration goes on (``navigator.object_reject_threshold``).
+that goal and exploration goes on (``navigator.goal_checks.object_reject_threshold``).
 
 - :class:`ObjectCategorySegmenter`: one RGB-D frame -> per-pixel logits over background and
   ``categories``. A small encoder-decoder, trained on labels from the world's geometry
@@ -14,7 +14,7 @@ that goal and exploration goes on (``navigator.object_reject_threshold``).
 - :func:`category_match`: mean probability of a category over a goal mask.
 - :func:`instructed_anchor`: the category a relation names ("... near the plant" -> plant);
   its per-pixel probability lets the navigator map the anchor and check that the goal it
-  stands at has one near (``navigator.relation_distance``).
+  stands at has one near (``navigator.goal_checks.relation_distance``).
 - :class:`ObjectEvidence`: what one S2 tick hands the navigator.
 """
 
@@ -55,7 +55,8 @@ CATEGORIES: tuple[str, ...] = (
 class ObjectCategoryConfig:
     """The object-category segmenter (``model.object_category.*``); weights in the checkpoint."""
 
-    enabled: bool = False  # build it (S2 uses it with navigator.object_reject_threshold)
+    # build it (S2 uses it with navigator.goal_checks.object_reject_threshold)
+    enabled: bool = False
     categories: list[str] = field(default_factory=lambda: list(CATEGORIES))
     channels: list[int] = field(default_factory=lambda: [16, 32, 64])  # stride-2 stages
     max_depth: float = MAX_DEPTH  # metres; depth is clipped and scaled to [-1, 1]

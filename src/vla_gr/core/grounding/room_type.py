@@ -5,7 +5,7 @@ instructed object from one frame, and a same-category twin in another room can l
 like it. The robot, though, stands in the goal's room when it is about to STOP, and rooms of
 one type share their wall paint and floor finish. So near a confirmed goal the navigator asks
 this classifier how likely the robot's room is of the instructed type; a confident "no"
-rejects that goal and exploration goes on (``navigator.room_reject_threshold``).
+rejects that goal and exploration goes on (``navigator.goal_checks.room_reject_threshold``).
 
 - :class:`RoomTypeClassifier`: one RGB-D frame -> logits over ``room_types``. It is a small
   stride-2 CNN, trained on the world's room labels at the robot's position
@@ -42,7 +42,8 @@ ROOM_TYPES: tuple[str, ...] = (
 class RoomTypeConfig:
     """The room-type classifier (``model.room_type.*``); its weights are in the checkpoint."""
 
-    enabled: bool = False  # build the classifier (S2 uses it with navigator.room_reject_threshold)
+    # build the classifier (S2 uses it with navigator.goal_checks.room_reject_threshold)
+    enabled: bool = False
     room_types: list[str] = field(default_factory=lambda: list(ROOM_TYPES))
     input_size: int = 32  # frames are area-averaged to this side first (room cues are coarse)
     channels: list[int] = field(default_factory=lambda: [16, 32, 64])  # stride-2 stages
