@@ -4,9 +4,9 @@ the instructed room, and how often one in a room of another type, per threshold.
     python benchmarks/bench_room_check.py --checkpoint outputs/room_type/agent \
         --store data/expert_val60.zarr [--ticks 3 --plan-every 3] [--out PATH]
 
-The check (``navigator.room_reject_threshold``) takes the mean, over the last ``--ticks`` S2
-ticks (one every ``--plan-every`` control steps), of the classifier's probability that the
-robot stands in a room of the type the instruction names. For every stored episode whose
+The check (``navigator.goal_checks.room_reject_threshold``) takes the mean, over the last
+``--ticks`` S2 ticks (one every ``--plan-every`` control steps), of the classifier's probability
+that the robot stands in a room of the type the instruction names. For every stored episode whose
 instruction names a room (``instructed_room``):
 
 - *right room*: the window of the episode's last ticks. The expert ends beside the goal, in

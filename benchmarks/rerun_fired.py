@@ -6,7 +6,7 @@ then without it on just those episodes, and put the two together::
 
     vla-gr eval checkpoint=checkpoints/vla_gr_cpu split=val first_episode=3800 \\
         num_episodes=200 workers=2 output_dir=runs/on \\
-        "eval.model_overrides=['navigator.unreachable_steps=200']"
+        "eval.model_overrides=['navigator.approach.unreachable_steps=200']"
     python benchmarks/rerun_fired.py episodes runs/on --reason unreachable --out fired.jsonl
     vla-gr eval checkpoint=checkpoints/vla_gr_cpu episodes=fired.jsonl workers=2 \\
         output_dir=runs/off
