@@ -36,9 +36,9 @@ import numpy as np
 import torch
 from omegaconf import OmegaConf
 
+from vla_gr.agent.perception import confusion_metrics, mask_confusion
 from vla_gr.checkpoint import read_checkpoint
 from vla_gr.configs.schema import VLAGRConfig
-from vla_gr.core.grounding import confusion_metrics, mask_confusion
 from vla_gr.data.goal_frames import GoalFrameDataset
 from vla_gr.data.store import EpisodeStore
 from vla_gr.envs.instructions import parse_instruction

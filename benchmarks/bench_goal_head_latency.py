@@ -32,11 +32,11 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from vla_gr.core.grounding import goal_head as goal_head_module
+from vla_gr.agent.observations import env_obs_to_frame
+from vla_gr.agent.perception import goal_head as goal_head_module
 from vla_gr.data.collect import make_env
 from vla_gr.machine import describe_machine, machine_line
 from vla_gr.policy import VLAGRPolicy
-from vla_gr.policy.frames import env_obs_to_frame
 
 logger = logging.getLogger("bench_goal_head_latency")
 

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vla_gr.core.grounding import InstructionLexicon, InstructionLexiconConfig
+from vla_gr.agent.perception import InstructionLexicon, InstructionLexiconConfig
 from vla_gr.envs.paraphrase import VOCABULARIES
 from vla_gr.machine import describe_machine
 from vla_gr.training.instruction_reader import reader_corpus

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from vla_gr.core.grounding import InstructionLexicon, InstructionLexiconConfig
+from vla_gr.agent.perception import InstructionLexicon, InstructionLexiconConfig
 from vla_gr.machine import describe_machine
 from vla_gr.training.instruction_reader import reader_corpus
 

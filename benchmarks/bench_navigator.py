@@ -66,8 +66,8 @@ def run_episodes(indices, split, image_size, plan_every, max_steps, pictures) ->
     import torch
 
     import vla_gr.envs  # noqa: F401  (registers VLAGR/ObjectNav-v0)
-    from vla_gr.core.dual_system.pure_pursuit import PurePursuit, PursuitConfig
-    from vla_gr.core.gr_field.navigator import Navigator, NavigatorConfig
+    from vla_gr.agent.followers.pure_pursuit import PurePursuit, PursuitConfig
+    from vla_gr.agent.navigator.navigator import Navigator, NavigatorConfig
 
     torch.set_num_threads(1)
     env = gym.make("VLAGR/ObjectNav-v0", split=split, image_size=image_size, semantic=True,

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from vla_gr.core.grounding import instructed_room
+from vla_gr.agent.perception import instructed_room
 from vla_gr.data.store import EpisodeStore
 from vla_gr.machine import describe_machine
 from vla_gr.policy import VLAGRPolicy

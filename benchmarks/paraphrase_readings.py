@@ -19,9 +19,9 @@ import argparse
 import json
 from pathlib import Path
 
-from vla_gr.core.grounding.instruction_reader import read_instruction
-from vla_gr.core.grounding.object_category import CATEGORIES
-from vla_gr.core.grounding.room_type import ROOM_TYPES
+from vla_gr.agent.perception.instruction_reader import read_instruction
+from vla_gr.agent.perception.object_category import CATEGORIES
+from vla_gr.agent.perception.room_type import ROOM_TYPES
 from vla_gr.envs.episodes import sample_episode
 
 GROUPS = ("every field right", "a field left empty", "a wrong category or anchor", "a wrong room")

@@ -14,14 +14,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from vla_gr.agent.dual_system import GroundedDualSystem
+from vla_gr.agent.perception.percept import Percept
 from vla_gr.cli import main as cli_main
 from vla_gr.configs import load_config
 from vla_gr.evaluate import EvalInputError, evaluate, expand_aliases, run_from_cli
 from vla_gr.evaluation import AGENTS
 from vla_gr.evaluation.agents import EvalAgent, UntrainedDualSystemAgent, register_agent
 from vla_gr.evaluation.summary import BREAKDOWNS, without_timing
-from vla_gr.policy.dual_system import GroundedDualSystem
-from vla_gr.policy.perception import Percept
 
 FAST = ["eval.progress=false", "eval.gif_successes=1", "eval.gif_per_cause=0", "seed=3"]
 

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tests.core.grounding.test_lexicon import axis, lexicon
+from tests.agent.perception.test_lexicon import axis, lexicon
 
 _PATH = Path(__file__).resolve().parents[2] / "benchmarks" / "bench_instruction_lexicon.py"
 _spec = importlib.util.spec_from_file_location("bench_instruction_lexicon", _PATH)

@@ -15,11 +15,12 @@ import torch
 from omegaconf import OmegaConf
 
 from vla_gr import __version__
+from vla_gr.agent.followers import LearnedFollower, PurePursuit
+from vla_gr.agent.perception.percept import TrueCategoryGate, TrueMaskPerception
 from vla_gr.checkpoint import save_checkpoint
 from vla_gr.cli import main as cli_main
 from vla_gr.configs import load_config
 from vla_gr.configs.schema import VariantConfig
-from vla_gr.core.dual_system import LearnedFollower, PurePursuit
 from vla_gr.evaluate import compare, expand_aliases
 from vla_gr.evaluation.agents import (
     AgentError,
@@ -30,7 +31,6 @@ from vla_gr.evaluation.agents import (
     true_mask_agent,
 )
 from vla_gr.policy import VLAGRPolicy, make_policy
-from vla_gr.policy.perception import TrueCategoryGate, TrueMaskPerception
 
 FAST = ["eval.progress=false", "eval.gif_successes=0", "eval.gif_per_cause=0"]
 TINY = [

@@ -14,13 +14,13 @@ import torch
 from safetensors.torch import load_file
 
 from tests.helpers import train_overrides
+from vla_gr.agent.followers import LearnedFollower
+from vla_gr.agent.followers.s1_inputs import PlanMemory
+from vla_gr.agent.navigator import NavPlan
+from vla_gr.agent.navigator.navigator import MODES
+from vla_gr.agent.perception import goal_head_loss
 from vla_gr.checkpoint import CheckpointError
 from vla_gr.configs import ConfigError, load_config
-from vla_gr.core.dual_system import LearnedFollower
-from vla_gr.core.dual_system.s1_inputs import PlanMemory
-from vla_gr.core.gr_field import NavPlan
-from vla_gr.core.gr_field.navigator import MODES
-from vla_gr.core.grounding import goal_head_loss
 from vla_gr.data.dataset import EpisodeWindowDataset
 from vla_gr.evaluation.agents import PolicyAgent
 from vla_gr.policy import EndToEndPolicy, VLAGRPolicy, make_fake_batch, make_policy
@@ -505,7 +505,7 @@ def test_anchor_not_goal_zeroes_the_goal_likelihood_on_the_anchors_pixels_only()
 
 
 def test_the_checks_read_the_instruction_once_per_episode(monkeypatch):
-    import vla_gr.policy.perception as agent_module
+    import vla_gr.agent.perception.percept as agent_module
 
     model = _model(
         "model.object_category.enabled=true",

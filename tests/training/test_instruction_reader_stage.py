@@ -13,10 +13,10 @@ import torch
 from omegaconf import OmegaConf
 
 from vla_gr import __version__
+from vla_gr.agent.perception import InstructionReader, InstructionReaderConfig
+from vla_gr.agent.perception.instruction_reader import FIELDS
 from vla_gr.checkpoint import read_checkpoint, save_checkpoint
 from vla_gr.configs import load_config
-from vla_gr.core.grounding import InstructionReader, InstructionReaderConfig
-from vla_gr.core.grounding.instruction_reader import FIELDS
 from vla_gr.envs.instructions import parse_instruction
 from vla_gr.envs.paraphrase import TRAINING
 from vla_gr.errors import UserError

@@ -13,11 +13,12 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
+from vla_gr.agent.followers import LearnedFollower, S1Policy
+from vla_gr.agent.followers.s1_inputs import plan_vector_size, pool_rgbd
+from vla_gr.agent.navigator import NavPlan
 from vla_gr.checkpoint import read_checkpoint
 from vla_gr.configs import load_config
-from vla_gr.core.dual_system import LearnedFollower, S1Config, S1Policy
-from vla_gr.core.dual_system.s1_inputs import plan_vector_size, pool_rgbd
-from vla_gr.core.gr_field import NavPlan
+from vla_gr.core.dual_system import S1Config
 from vla_gr.data.collect import make_env
 from vla_gr.envs.local_teacher import LocalTeacherConfig
 from vla_gr.errors import UserError

@@ -4,11 +4,11 @@ Nests one config per component; each lives beside its component in ``vla_gr.core
 (``model.encoders``: :mod:`vla_gr.core.encoders.config`, ``model.head``:
 :mod:`vla_gr.core.diffusion_policy.config`, ``model.gr_field``:
 :mod:`vla_gr.core.gr_field.config`, ``model.navigator``:
-:mod:`vla_gr.core.gr_field.navigator_config` (one section per concern), ``model.schedule``
+:mod:`vla_gr.agent.navigator.config` (one section per concern), ``model.schedule``
 and ``model.s1``: :mod:`vla_gr.core.dual_system.config`, ``model.pursuit``:
-:mod:`vla_gr.core.dual_system.pure_pursuit`, ``model.goal_head``, ``model.grounding``,
+:mod:`vla_gr.agent.followers.pure_pursuit`, ``model.goal_head``, ``model.grounding``,
 ``model.room_type``, ``model.object_category``, ``model.instruction_reader`` and
-``model.instruction_lexicon``: :mod:`vla_gr.core.grounding`), so the defaults are written once.
+``model.instruction_lexicon``: :mod:`vla_gr.agent.perception`), so the defaults are written once.
 The seed's latent ``DualSystemArchitecture`` (:class:`~vla_gr.core.dual_system.DualSystemConfig`)
 is a building block no agent runs: it has no section here.
 
@@ -20,13 +20,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
-from vla_gr.core.diffusion_policy.config import HeadConfig
-from vla_gr.core.dual_system.config import S1Config, ScheduleConfig
-from vla_gr.core.dual_system.pure_pursuit import PursuitConfig
-from vla_gr.core.encoders.config import EncodersConfig
-from vla_gr.core.gr_field.config import GRFieldConfig
-from vla_gr.core.gr_field.navigator_config import NavigatorConfig
-from vla_gr.core.grounding import (
+from vla_gr.agent.followers.pure_pursuit import PursuitConfig
+from vla_gr.agent.navigator.config import NavigatorConfig
+from vla_gr.agent.perception import (
     GoalHeadConfig,
     GroundingConfig,
     InstructionLexiconConfig,
@@ -34,6 +30,10 @@ from vla_gr.core.grounding import (
     ObjectCategoryConfig,
     RoomTypeConfig,
 )
+from vla_gr.core.diffusion_policy.config import HeadConfig
+from vla_gr.core.dual_system.config import S1Config, ScheduleConfig
+from vla_gr.core.encoders.config import EncodersConfig
+from vla_gr.core.gr_field.config import GRFieldConfig
 from vla_gr.validation import check_choice, check_positive
 
 PEFT_METHODS = ("lora", "oft", "adapter")

@@ -241,8 +241,8 @@ def true_mask_agent(cfg, env) -> PolicyAgent | UntrainedDualSystemAgent:
     pursuit) and the schedule are ``eval.checkpoint``'s (with ``eval.model_overrides``) when
     one is given, else ``cfg.model``'s, exactly as for the learned agent.
     """
-    from vla_gr.policy.dual_system import GroundedDualSystem
-    from vla_gr.policy.perception import TrueMaskPerception
+    from vla_gr.agent.dual_system import GroundedDualSystem
+    from vla_gr.agent.perception.percept import TrueMaskPerception
 
     perception = TrueMaskPerception(env)
     policy = true_mask_policy(cfg)
@@ -277,7 +277,7 @@ def true_category_agent(cfg, env) -> PolicyAgent:
     room and object checks and its instruction lexicon, if it has them, run as in the
     checkpoint's agent.
     """
-    from vla_gr.policy.perception import TrueCategoryGate
+    from vla_gr.agent.perception.percept import TrueCategoryGate
 
     if not cfg.eval.checkpoint:
         raise AgentError("agent=true_category gates a checkpoint's goal head; give checkpoint=")

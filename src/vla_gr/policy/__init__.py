@@ -2,10 +2,11 @@
 :class:`VLAGRPolicy` (the dual system) and :class:`EndToEndPolicy` (the ablation without the
 GR field); :func:`load_policy` reads a checkpoint into the class it names."""
 
+from vla_gr.agent.observations import as_instructions, env_obs_to_frame
 from vla_gr.policy.base import NavigationPolicy
 from vla_gr.policy.end_to_end import EndToEndPolicy
 from vla_gr.policy.factory import load_policy, make_policy, policy_class
-from vla_gr.policy.frames import apply_peft, as_instructions, env_obs_to_frame, make_fake_batch
+from vla_gr.policy.frames import apply_peft, make_fake_batch
 from vla_gr.policy.vla_gr import VLAGRPolicy
 
 __all__ = [

@@ -20,12 +20,12 @@ import torch
 from torch import nn
 from torch.utils.checkpoint import checkpoint
 
+from vla_gr.agent.observations import as_instructions, env_obs_to_frame
 from vla_gr.configs.model_schema import ModelConfig
 from vla_gr.core.diffusion_policy import DiffusionPolicy
 from vla_gr.core.encoders import PoseEncoder, RGBDEncoder, build_text_encoder, pose_features
 from vla_gr.core.trajectory_attention import TransformerBlock
 from vla_gr.policy.base import NavigationPolicy
-from vla_gr.policy.frames import as_instructions, env_obs_to_frame
 
 __all__ = ["EndToEndPolicy"]
 

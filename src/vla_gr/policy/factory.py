@@ -43,7 +43,7 @@ POLICY_CLASSES: dict[str, type[NavigationPolicy]] = {
 #: A checkpoint or an override with an old key fails naming the new one; a migration
 #: (``vla-gr export SRC DST --rename-keys``) writes the new names.
 RENAMED_KEYS: dict[str, str] = {
-    # the navigator, one section per concern (vla_gr.core.gr_field.navigator_config)
+    # the navigator, one section per concern (vla_gr.agent.navigator.config)
     "navigator.look_around_angle": "navigator.look_around.angle",
     "navigator.look_around_completes": "navigator.look_around.completes",
     "navigator.pixel_threshold": "navigator.confirmation.pixel_threshold",

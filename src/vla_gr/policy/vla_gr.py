@@ -7,7 +7,7 @@ One control step (batch 1)::
         every step:             S1 follower (pure pursuit or the learned S1) -> (v, w, stop)
 
 Training (``forward``) fits S2's language-grounded goal head (``model.goal_head``,
-:mod:`vla_gr.core.grounding`) on the last observation frame of each window against
+:mod:`vla_gr.agent.perception`) on the last observation frame of each window against
 ``goal_mask`` (the instructed instance only; distractors are negatives). The other networks
 (room-type classifier, object-category segmenter, instruction reader, learned S1) are
 trained by their own stages and loaded from the checkpoint.
@@ -20,9 +20,10 @@ from collections.abc import Mapping
 import numpy as np
 import torch
 
-from vla_gr.configs.model_schema import ModelConfig
-from vla_gr.core.dual_system import S1Policy
-from vla_gr.core.grounding import (
+from vla_gr.agent.dual_system import GroundedDualSystem
+from vla_gr.agent.followers import S1Policy
+from vla_gr.agent.observations import as_instructions
+from vla_gr.agent.perception import (
     GoalHead,
     InstructionLexicon,
     InstructionReader,
@@ -31,10 +32,9 @@ from vla_gr.core.grounding import (
     goal_head_loss,
     mask_confusion,
 )
+from vla_gr.agent.perception.percept import LearnedPerception, Perception
+from vla_gr.configs.model_schema import ModelConfig
 from vla_gr.policy.base import NavigationPolicy
-from vla_gr.policy.dual_system import GroundedDualSystem
-from vla_gr.policy.frames import as_instructions
-from vla_gr.policy.perception import LearnedPerception, Perception
 
 __all__ = ["VLAGRPolicy"]
 
@@ -179,7 +179,7 @@ class VLAGRPolicy(NavigationPolicy):
     @torch.no_grad()
     def select_action(self, obs: Mapping) -> torch.Tensor:
         """One control step of the dual system -> action ``(1, A)`` (S2 every ``plan_every``
-        steps, S1 every step; see :mod:`vla_gr.policy.dual_system`). ``obs`` is one env
+        steps, S1 every step; see :mod:`vla_gr.agent.dual_system`). ``obs`` is one env
         observation, optionally with a leading batch of one."""
         action = self.dual_system.step(_single_observation(obs))  # (A,)
         return torch.from_numpy(action).to(self.device)[None]  # (1, A)

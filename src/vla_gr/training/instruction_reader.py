@@ -1,4 +1,4 @@
-"""Train S2's instruction reader (:mod:`vla_gr.core.grounding.instruction_reader`).
+"""Train S2's instruction reader (:mod:`vla_gr.agent.perception.instruction_reader`).
 
 The corpus is generated, not collected: random goal descriptions (a category, with or without
 a colour, a room and a neighbour) said in the template phrasings, in the *training*
@@ -69,7 +69,7 @@ def reader_corpus(
     instruction in that paraphrase vocabulary; "template" only in templates.
     Returns ``instructions`` (N,) and, per field, labels (N,) int64 (0 = not named).
     """
-    from vla_gr.core.grounding import InstructionReaderConfig
+    from vla_gr.agent.perception import InstructionReaderConfig
     from vla_gr.envs.instructions import render_instruction
     from vla_gr.envs.paraphrase import TRAINING, VOCABULARIES, paraphrase
     from vla_gr.envs.scene import category_display_name
@@ -123,7 +123,7 @@ def reader_accuracy(reader, corpus: dict) -> dict:
     """Per field on ``corpus`` (:func:`reader_corpus`): ``accuracy`` of the most likely class,
     ``filled`` = share of instructions where it names a class at ``min_confidence``,
     ``filled_accuracy`` = how often that class is right, ``wrong_fills`` = their count."""
-    from vla_gr.core.grounding.instruction_reader import FIELDS
+    from vla_gr.agent.perception.instruction_reader import FIELDS
 
     reader.eval()
     probs = reader.probabilities(corpus["instructions"])  # {field: (N, C)}
@@ -157,7 +157,7 @@ def fit_reader(
     """Fit ``reader`` to ``corpus`` (:func:`reader_corpus`) with AdamW on the summed
     cross-entropy of its fields; each training token but the first is hidden from the
     attention with probability ``token_dropout``. Returns the loss per step."""
-    from vla_gr.core.grounding.instruction_reader import FIELDS
+    from vla_gr.agent.perception.instruction_reader import FIELDS
 
     if not 0.0 <= token_dropout < 1.0:
         raise UserError(f"token_dropout={token_dropout} must be in [0, 1)")

@@ -1,4 +1,4 @@
-"""Train S2's object-category segmenter (:mod:`vla_gr.core.grounding.object_category`).
+"""Train S2's object-category segmenter (:mod:`vla_gr.agent.perception.object_category`).
 
 Labels of a frame: the category of the object every pixel shows, from the world's geometry
 (:mod:`vla_gr.training.object_labels`: the stored depth and pose, back-projected into the
@@ -123,6 +123,6 @@ def train_object_category(
 
 def labels(settings: Sequence[str]) -> list[str]:
     """``object_category.categories`` after ``settings`` (the classes frames are labelled in)."""
-    from vla_gr.core.grounding import ObjectCategoryConfig
+    from vla_gr.agent.perception import ObjectCategoryConfig
 
     return part_setting(ObjectCategoryConfig, "object_category", "categories", settings)

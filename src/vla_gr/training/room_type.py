@@ -1,4 +1,4 @@
-"""Train S2's room-type classifier (:mod:`vla_gr.core.grounding.room_type`) on expert stores.
+"""Train S2's room-type classifier (:mod:`vla_gr.agent.perception.room_type`) on expert stores.
 
 Label of a frame: the type of the room the robot stands in, from the world. Each episode's
 spec gives its house, regenerated from the scene seed, and its start pose. The stored pose,
@@ -139,6 +139,6 @@ def train_room_type(
 
 def labels(settings: Sequence[str]) -> list[str]:
     """``room_type.room_types`` after ``settings`` (the classes frames are labelled in)."""
-    from vla_gr.core.grounding import RoomTypeConfig
+    from vla_gr.agent.perception import RoomTypeConfig
 
     return part_setting(RoomTypeConfig, "room_type", "room_types", settings)

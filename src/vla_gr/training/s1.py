@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from vla_gr.core.dual_system.s1_inputs import PlanMemory
+from vla_gr.agent.followers.s1_inputs import PlanMemory
 from vla_gr.errors import UserError
 from vla_gr.training.agent_stage import build_agent_from, write_agent
 from vla_gr.training.optim import build_optimizer, build_scheduler

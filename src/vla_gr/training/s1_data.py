@@ -3,7 +3,7 @@
 One round: ``vla-gr eval`` rolls the agent out on ``train`` episodes and records its actions;
 :func:`relabel_episode` replays them with the agent's S2 running on its usual schedule, and at
 every control step writes what S1 would read (the RGB-D pooled to ``model.s1.image_size``, the
-plan vector of :mod:`vla_gr.core.dual_system.s1_inputs`) and what the
+plan vector of :mod:`vla_gr.agent.followers.s1_inputs`) and what the
 :class:`~vla_gr.envs.local_teacher.LocalTeacher` would do there (drive to S2's current
 waypoint on the true map; STOP only when S2 asks and the goal is inside success distance).
 The labels never point at anything the agent has not observed: the teacher follows S2.
@@ -28,8 +28,8 @@ from pathlib import Path
 import numpy as np
 from safetensors.numpy import load_file, save_file
 
+from vla_gr.agent.followers.s1_inputs import PlanMemory, pool_rgbd
 from vla_gr.checkpoint import sha256_file
-from vla_gr.core.dual_system.s1_inputs import PlanMemory, pool_rgbd
 from vla_gr.data.collect import make_env
 from vla_gr.errors import UserError
 from vla_gr.training.dagger import check_replay_end, train_run
@@ -133,7 +133,7 @@ def relabel_run(
 
 
 def _layout(s1) -> dict:
-    from vla_gr.core.dual_system.s1_inputs import plan_vector_size
+    from vla_gr.agent.followers.s1_inputs import plan_vector_size
 
     return {
         "image_size": int(s1.image_size),

@@ -15,7 +15,7 @@ import torch
 from torch import nn
 from torch.nn.parallel import DistributedDataParallel
 
-from vla_gr.core.grounding import confusion_metrics
+from vla_gr.agent.perception import confusion_metrics
 from vla_gr.training.distributed import all_reduce_mean
 from vla_gr.training.ema import EMA
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from tests.core.gr_field.navigator_scenes import make_nav, room_depth, tick
+from tests.agent.navigator.navigator_scenes import make_nav, room_depth, tick
 from vla_gr.core.gr_field import FieldMaps, GRField, GRFieldConfig
 from vla_gr.core.gr_field.mapping import (
     FREE_HITS,

@@ -4,9 +4,8 @@ Data flow: :mod:`.config` (``DualSystemConfig``; the agent's ``ScheduleConfig`` 
 ``S1Config``) -> :mod:`.planner` (``S2Planner``: latent goal + confidence) -> :mod:`.controller`
 (``S1Controller``: action) -> :mod:`.architecture` (``DualSystemArchitecture``: S2 every few S1
 calls) -> :mod:`.runner` (the same schedule with S2 in a background thread, S1 never waiting).
-:mod:`.pure_pursuit` (``PurePursuit``) is the non-learned S1 that follows the GR-field
-navigator's waypoints; :mod:`.learned_s1` (``S1Policy``, ``LearnedFollower``) is the learned
-one, reading :mod:`.s1_inputs`.
+The VLA-GR agent's own S1 followers (pure pursuit, the learned S1) are
+:mod:`vla_gr.agent.followers`.
 """
 
 from vla_gr.core.dual_system.architecture import (
@@ -22,9 +21,7 @@ from vla_gr.core.dual_system.config import (
     ScheduleConfig,
 )
 from vla_gr.core.dual_system.controller import S1Controller, gate_actions
-from vla_gr.core.dual_system.learned_s1 import LearnedFollower, S1Policy
 from vla_gr.core.dual_system.planner import S2Planner
-from vla_gr.core.dual_system.pure_pursuit import PurePursuit, PursuitConfig
 from vla_gr.core.dual_system.runner import DualSystemRunner, LatestSlot, Plan
 
 __all__ = [
@@ -34,13 +31,9 @@ __all__ = [
     "DualSystemConfig",
     "DualSystemRunner",
     "LatestSlot",
-    "LearnedFollower",
     "Plan",
-    "PurePursuit",
-    "PursuitConfig",
     "S1Config",
     "S1Controller",
-    "S1Policy",
     "S2Planner",
     "ScheduleConfig",
     "confidence_targets",

@@ -91,7 +91,7 @@ class ScheduleConfig:
 class S1Config:
     """S1 of the grounded dual system (``model.s1``): what drives between S2 ticks.
 
-    ``kind=learned`` runs :class:`~vla_gr.core.dual_system.learned_s1.S1Policy` (its own RGB-D
+    ``kind=learned`` runs :class:`~vla_gr.agent.followers.learned_s1.S1Policy` (its own RGB-D
     encoder at ``image_size``, the latest plan as a vector, an action chunk from ``head`` and
     a STOP probability); ``pure_pursuit`` runs the non-learned follower (``model.pursuit``)
     on the same plans. ``use_s2=false`` never hands S1 a plan (the "without S2" ablation).

@@ -5,16 +5,13 @@ Data flow: :mod:`.config` (``GRFieldConfig``, feature channels) -> :mod:`.mappin
 geodesics; pure maths) -> :mod:`.planning` (``GRField``: one update per planner tick,
 waypoints and egocentric features; its allocentric layers as :mod:`.field_maps`'
 ``FieldMaps``) -> :mod:`.picture` (top-down image for reports).
-:mod:`.navigator` (``Navigator``) is S2's behaviour on the field: look around, explore,
-approach, verify, recover, stop; :mod:`.navigator_config` its settings, :mod:`.goal_checks`
-its checks of a goal before a STOP, :mod:`.map_edits` its own marks on the map.
+The agent's behaviour on the field (look around, explore, approach, verify, recover, stop)
+is :mod:`vla_gr.agent.navigator`.
 """
 
 from vla_gr.core.gr_field.config import FEATURE_NAMES, GRFieldConfig
 from vla_gr.core.gr_field.field_maps import FieldMaps
 from vla_gr.core.gr_field.mapping import update_map
-from vla_gr.core.gr_field.navigator import MODES, Navigator, NavPlan
-from vla_gr.core.gr_field.navigator_config import NavigatorConfig
 from vla_gr.core.gr_field.physics import christoffel_conformal, integrate_geodesic, solve_poisson
 from vla_gr.core.gr_field.picture import render_field
 from vla_gr.core.gr_field.planning import GRField, GRFieldOutput, snap_start
@@ -25,10 +22,6 @@ __all__ = [
     "GRField",
     "GRFieldConfig",
     "GRFieldOutput",
-    "MODES",
-    "NavPlan",
-    "Navigator",
-    "NavigatorConfig",
     "christoffel_conformal",
     "integrate_geodesic",
     "render_field",

@@ -1,0 +1,250 @@
+"""S2's perception: one observation in, one typed :class:`Percept` out, once per S2 tick.
+
+A perception reads the instruction once per episode, converts the frame once per tick and
+asks each of its networks once: the goal likelihood (pixels of THE instance the instruction
+means), the room check, the object checks and the relation's anchor. The navigator receives
+the percept; nothing calls back into the policy.
+
+- :class:`LearnedPerception`: the agent's own (goal head, room-type classifier,
+  object-category segmenter, instruction reader and lexicon of a ``VLAGRPolicy``);
+  :meth:`LearnedPerception.gated` multiplies its goal likelihood by a pixel gate.
+- :class:`TrueMaskPerception`: privileged, the true goal instance's mask (the planner's
+  ceiling); :class:`TrueCategoryGate`: privileged, the pixels of the goal's category.
+"""
+
+from __future__ import annotations
+
+import copy as _copy
+import dataclasses
+import re
+from collections.abc import Callable, Mapping
+from typing import Protocol
+
+import numpy as np
+import torch
+
+from vla_gr.agent.observations import as_instructions, env_obs_to_frame
+from vla_gr.agent.perception.goal_head import GoalHead
+from vla_gr.agent.perception.instruction_reader import InstructionReader, Reading, read_instruction
+from vla_gr.agent.perception.lexicon import InstructionLexicon
+from vla_gr.agent.perception.object_category import ObjectCategorySegmenter, category_match
+from vla_gr.agent.perception.room_type import RoomTypeClassifier
+
+__all__ = ["LearnedPerception", "Percept", "Perception", "TrueCategoryGate", "TrueMaskPerception"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Percept:
+    """What S2 perceived on one tick.
+
+    ``likelihood`` (H, W) float32 in [0, 1]: probability that each pixel shows the instructed
+    instance; ``visible``: probability that it is in view at all; ``room_match``: probability
+    that the robot stands in the room the instruction names (1 when it names none or nothing
+    checks it); ``category_match``: probability that the likely goal pixels show the
+    instructed category (None: no evidence); ``anchor`` (H, W) or None: per-pixel probability
+    of a relation's anchor category.
+    """
+
+    likelihood: np.ndarray
+    visible: float = 1.0
+    room_match: float = 1.0
+    category_match: float | None = None
+    anchor: np.ndarray | None = None
+
+
+class Perception(Protocol):
+    """What the dual system needs of a perception."""
+
+    #: the instruction as S2 read it this episode (None: read as said)
+    read_as: str | None
+
+    def reset(self) -> None:
+        """New episode: forget the reading of the last instruction."""
+
+    def perceive(self, obs: Mapping) -> Percept:
+        """One S2 tick on one environment observation (``rgb`` (H, W, 3), ``depth``
+        (H, W, 1), ``pose`` (3,), ``instruction``)."""
+
+
+#: ``obs -> (H, W) bool``: pixels a gated perception keeps in its goal likelihood.
+PixelGate = Callable[[Mapping], np.ndarray]
+
+
+@dataclasses.dataclass
+class _EpisodeReading:
+    """The instruction of an episode as said, as S2 reads it, and what it names."""
+
+    said: str
+    read_as: str
+    reading: Reading
+    has_colour: bool
+
+
+class LearnedPerception:
+    """The agent's S2 perception, built from the networks of a ``VLAGRPolicy``.
+
+    Args:
+        config: the agent's ``ModelConfig`` (``object_category``, ``room_type``,
+            ``instruction_lexicon`` and ``navigator.confirmation.pixel_threshold`` are read).
+        goal_head: the language-grounded goal head.
+        room_type, object_category, instruction_reader, lexicon: optional checks and
+            readers (None: the check passes, the field is read from template words only,
+            the instruction is read as said).
+        device: where the networks run.
+        gate: optional privileged pixel gate multiplied into the goal likelihood.
+    """
+
+    def __init__(
+        self,
+        config,
+        goal_head: GoalHead,
+        room_type: RoomTypeClassifier | None = None,
+        object_category: ObjectCategorySegmenter | None = None,
+        instruction_reader: InstructionReader | None = None,
+        lexicon: InstructionLexicon | None = None,
+        device: torch.device | str = "cpu",
+        gate: PixelGate | None = None,
+    ) -> None:
+        self.config = config
+        self.goal_head = goal_head
+        self.room_type = room_type
+        self.object_category = object_category
+        self.instruction_reader = instruction_reader
+        self.lexicon = lexicon
+        self.device = device
+        self.gate = gate
+        self._episode: _EpisodeReading | None = None
+
+    def gated(self, gate: PixelGate) -> LearnedPerception:
+        """The same networks, with the goal likelihood multiplied by ``gate(obs)``."""
+        copy = _copy.copy(self)
+        copy.gate, copy._episode = gate, None
+        return copy
+
+    @property
+    def read_as(self) -> str | None:
+        """This episode's instruction in template words (None without a lexicon or a read)."""
+        if self.lexicon is None or self._episode is None:
+            return None
+        return self._episode.read_as
+
+    def reset(self) -> None:
+        self._episode = None
+
+    def read(self, instruction: str) -> Reading:
+        """What the checks take ``instruction`` to name (template words, then the
+        instruction reader), read from the lexicon's rewording when there is a lexicon."""
+        return self._read(instruction).reading
+
+    def _read(self, said: str) -> _EpisodeReading:
+        """The reading of ``said``, made at the first tick of an episode and kept."""
+        if self._episode is None or self._episode.said != said:
+            read_as = said if self.lexicon is None else self.lexicon.canonical(said)
+            reading = read_instruction(
+                read_as,
+                self.config.object_category.categories,
+                self.config.room_type.room_types,
+                self.instruction_reader,
+            )
+            words = set(re.findall(r"[a-z]+", read_as.lower()))
+            colours = words & set(self.config.instruction_lexicon.colors)
+            self._episode = _EpisodeReading(said, read_as, reading, bool(colours))
+        return self._episode
+
+    @torch.no_grad()
+    def perceive(self, obs: Mapping) -> Percept:
+        said = as_instructions(obs["instruction"], "obs['instruction']")
+        if len(said) != 1 or np.asarray(obs["rgb"]).ndim != 3:
+            raise ValueError(
+                f"S2 perceives one observation at a time; got obs['rgb'] of shape "
+                f"{np.asarray(obs['rgb']).shape}"
+            )
+        episode = self._read(said[0])
+        reading = episode.reading
+        frame = env_obs_to_frame({**obs, "instruction": episode.read_as}, device=self.device)
+        pixels, visible = self.goal_head.likelihood(
+            frame["rgb"], frame["depth"], frame["instruction"]
+        )  # (1, H, W), (1,)
+        likelihood = pixels[0].float().cpu().numpy()  # (H, W)
+        segmented: list[np.ndarray] = []  # the segmenter's (1 + K, H, W), once per tick
+
+        def segment() -> np.ndarray:
+            if not segmented:
+                probs = self.object_category.probabilities(frame["rgb"], frame["depth"])[0]
+                segmented.append(probs.cpu().numpy())  # (1 + K, H, W)
+            return segmented[0]
+
+        oc = self.config.object_category
+        threshold = self.config.navigator.confirmation.pixel_threshold
+        with_segmenter = self.object_category is not None
+        is_relation = reading.category is not None and reading.anchor is not None
+        if with_segmenter and oc.relation_candidates and is_relation and not episode.has_colour:
+            # a relation without a colour: every pixel of the category is a candidate
+            likelihood = np.maximum(likelihood, segment()[reading.category])  # (H, W)
+        excluded = reading.anchor is not None and reading.anchor != reading.category
+        if with_segmenter and oc.anchor_not_goal and excluded:  # anchor pixels are not goal's
+            anchor_pixels = segment()[reading.anchor] >= threshold  # (H, W)
+            likelihood = np.where(anchor_pixels, 0.0, likelihood).astype(np.float32)  # (H, W)
+        if self.gate is not None:
+            likelihood = likelihood * self.gate(obs)  # (H, W)
+        likelihood = np.asarray(likelihood, dtype=np.float32)  # (H, W)
+        depth_shape = np.asarray(obs["depth"]).shape[:2]
+        if likelihood.shape != depth_shape:
+            raise ValueError(
+                f"goal likelihood has shape {likelihood.shape}, expected {depth_shape}"
+            )
+
+        room_match = 1.0
+        if self.room_type is not None and reading.room is not None:
+            probs = self.room_type.probabilities(frame["rgb"], frame["depth"])  # (1, R)
+            room_match = float(probs[0, reading.room])
+
+        match, anchor = None, None
+        if with_segmenter:
+            index = reading.category
+            goal = likelihood >= threshold  # (H, W)
+            if index is not None and int(goal.sum()) < oc.min_goal_pixels:
+                index = None
+            if index is not None:
+                match = category_match(segment(), goal, index, oc.min_goal_pixels)
+            if reading.anchor is not None:
+                anchor = segment()[reading.anchor]  # (H, W)
+        return Percept(likelihood, float(visible[0]), room_match, match, anchor)
+
+
+class TrueMaskPerception:
+    """Privileged: the TRUE goal mask as S2's likelihood (needs the env's ``semantic``
+    observation), no room or object checks; the planner's ceiling."""
+
+    read_as = None
+
+    def __init__(self, env) -> None:
+        self.env = env
+
+    def reset(self) -> None:
+        pass
+
+    def perceive(self, obs: Mapping) -> Percept:
+        goal = int(self.env.unwrapped.goal.instance_id)
+        return Percept((semantic_of(obs, "true_mask") == goal).astype(np.float32))  # (H, W)
+
+
+class TrueCategoryGate:
+    """Privileged pixel gate: the pixels that show an object of the goal's category (from
+    the env's ``semantic`` observation). Gating the learned likelihood with it tells how
+    much of the gap to the true mask is category recognition."""
+
+    def __init__(self, env) -> None:
+        self.env = env
+
+    def __call__(self, obs: Mapping) -> np.ndarray:
+        u = self.env.unwrapped
+        same = [o.instance_id for o in u.house.objects if o.category == u.goal.category]
+        return np.isin(semantic_of(obs, "true_category"), same)  # (H, W) bool
+
+
+def semantic_of(obs: Mapping, agent: str) -> np.ndarray:
+    """The env's instance-id image (H, W); ValueError naming ``agent`` without it."""
+    if "semantic" not in obs:
+        raise ValueError(f"agent={agent} needs the env's semantic observation (semantic=True)")
+    return np.asarray(obs["semantic"])
