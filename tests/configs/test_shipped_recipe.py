@@ -1,0 +1,55 @@
+"""``recipe_vla_gr_cpu`` (how the shipped checkpoint was made, as stages) ends in exactly the
+model settings ``checkpoints/vla_gr_cpu`` carries: the recipe's model config with what each
+stage writes into the agent (the checks it trains, S1's kind, the export overrides)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from omegaconf import OmegaConf
+
+from vla_gr.checkpoint import read_checkpoint
+from vla_gr.configs import load_config
+from vla_gr.training.pipeline import stage_config
+
+SHIPPED = Path(__file__).resolve().parents[2] / "checkpoints" / "vla_gr_cpu"
+
+
+def _leaves(tree: dict, prefix: str = "") -> dict:
+    out = {}
+    for key, value in tree.items():
+        if isinstance(value, dict) and value:
+            out |= _leaves(value, f"{prefix}{key}.")
+        else:
+            out[prefix + key] = value
+    return out
+
+
+def test_the_shipped_recipe_ends_in_the_shipped_checkpoints_model_settings():
+    resolved, cfg = load_config("recipe_vla_gr_cpu", [])
+    written: list[str] = []  # what the stages write into the agent's config, in order
+    for stage in cfg.pipeline.stages:
+        _, stage_cfg = stage_config(resolved, stage)  # every stage's config is valid
+        if stage.kind == "room_type":
+            threshold = stage_cfg.training.room_type.reject_threshold
+            written += ["room_type.enabled=true",
+                        f"navigator.goal_checks.room_reject_threshold={threshold}"]  # fmt: skip
+        elif stage.kind == "object_category":
+            threshold = stage_cfg.training.object_category.reject_threshold
+            written += ["object_category.enabled=true",
+                        f"navigator.goal_checks.object_reject_threshold={threshold}"]  # fmt: skip
+        elif stage.kind == "graft":
+            written += [f"{stage.part}.enabled=true", *stage.model_overrides]
+        elif stage.kind == "s1":
+            written.append("s1.kind=learned")
+        elif stage.kind == "export":
+            written += list(stage.model_overrides)
+    model = OmegaConf.merge(
+        OmegaConf.to_container(resolved.model, resolve=True), OmegaConf.from_dotlist(written)
+    )
+    shipped = OmegaConf.create(read_checkpoint(SHIPPED).config_yaml).model
+    rebuilt = _leaves(OmegaConf.to_container(model, resolve=True))
+    want = _leaves(OmegaConf.to_container(shipped, resolve=True))
+    assert {k: (rebuilt.get(k), want.get(k)) for k in rebuilt.keys() | want.keys()
+            if rebuilt.get(k) != want.get(k)} == {}  # fmt: skip
+    assert [s.name for s in cfg.pipeline.stages][-1] == "shipped" and len(cfg.pipeline.stages) == 32
