@@ -204,7 +204,7 @@ def test_true_category_reads_the_instruction_through_the_checkpoints_lexicon(dua
 
 def test_a_missing_variant_checkpoint_stops_before_any_episode(tmp_path, capsys):
     out = tmp_path / "out"
-    made_by = "python -m vla_gr.training.s1 a b"
+    made_by = "vla-gr train --config-name recipe_ablations"
     variant = f"+eval.variants={{gone:{{checkpoint:{tmp_path / 'gone'},made_by:'{made_by}'}}}}"
     argv = ["eval", "--config-name", "config_debug", f"output_dir={out}", *FAST, variant]
     assert cli_main([*argv, "agents=[random,gone]"]) == 2
@@ -257,5 +257,5 @@ def test_the_ablations_recipe_names_an_agent_for_every_row(tmp_path):
     registered = ("true_mask", "true_category", "random")
     assert all(bases[name] == name for name in registered)
     assert {bases[n] for n in cfg.eval.agents if n not in registered} == {"checkpoint"}
-    with pytest.raises(AgentError, match=r"agent s1_ddim: .* make it with: python -m vla_gr\."):
+    with pytest.raises(AgentError, match=r"agent s1_ddim: .* make it with: vla-gr train --config"):
         check_agent("s1_ddim", cfg)

@@ -9,11 +9,10 @@ goal); :func:`aggregate` appends them to a copy of the training store. Retrain o
 (``training.dataset=<it> training.init_from=<checkpoint>``) and keep the round only if it
 helps on ``val``.
 
-    python -m vla_gr.training.dagger outputs/dagger/round1 data/expert_train.zarr \
-        data/dagger_train.zarr
-
 The stored action of a frame is the action the agent executed there (the goal head does not
 read actions; a learned S1 would be relabelled by its teacher instead).
+
+A recipe's ``rollout`` then ``dagger`` stages run it (inputs: the rollouts, the base store).
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ share of instructions it fills at ``min_confidence`` and the accuracy of what it
 rest of the agent comes from ``init`` and stays fixed; the result is the agent with
 ``model.instruction_reader.enabled=true``.
 
-    python -m vla_gr.training.instruction_reader checkpoints/vla_gr_cpu outputs/reader/agent
+A recipe's ``instruction_reader`` stage runs it (``training.instruction_reader.*``).
 """
 
 from __future__ import annotations

@@ -9,8 +9,7 @@ comes from ``init`` and stays fixed. The result is the agent with
 (``navigator.goal_checks.object_reject_threshold``), a checkpoint that ``vla-gr eval`` loads
 like any other.
 
-    python -m vla_gr.training.object_category checkpoints/vla_gr_cpu outputs/object/agent \
-        --store data/big4.zarr --episodes 1500 --stride 6 --eval-store data/expert_val60.zarr
+A recipe's ``object_category`` stage runs it (``training.object_category.*``).
 """
 
 from __future__ import annotations

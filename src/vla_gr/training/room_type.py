@@ -9,11 +9,8 @@ the agent with ``model.room_type.enabled=true`` and the room check on
 (``navigator.goal_checks.room_reject_threshold``), a checkpoint that ``vla-gr eval`` loads like
 any other.
 
-    python -m vla_gr.training.room_type checkpoints/vla_gr_cpu outputs/room_type/agent \
-        --store data/big3.zarr --episodes 1200 --stride 8 --eval-store data/expert_val60.zarr
-    # the same classifier on another goal head (it reads frames only):
-    python -m vla_gr.training.room_type outputs/train/<run>/checkpoints/latest out/ \
-        --classifier-from outputs/room_type/agent
+A recipe's ``room_type`` stage runs it (``training.room_type.*``); a ``graft`` stage
+takes a classifier trained beside another agent.
 """
 
 from __future__ import annotations

@@ -6,13 +6,10 @@ of ``model.s1.head.horizon`` steps (the labels of the next steps along the same 
 last one repeated at its end) plus BCE on the teacher's STOP. Whole episodes are held out
 for validation; the S1 weights with the lowest validation loss are written, with
 ``model.s1.kind=learned``, as a checkpoint that ``vla-gr eval`` loads like any other.
-With ``--set s1.use_s2=false`` (the "without S2" ablation) S1 trains on the empty plan
+With ``settings=["s1.use_s2=false"]`` (the "without S2" ablation) S1 trains on the empty plan
 vectors it reads at inference.
 
-    python -m vla_gr.training.s1 checkpoints/vla_gr_cpu outputs/s1/flow \
-        --data data/s1/round0 --steps 3000
-    # another head: --set s1.head.objective=l1 (diffusion + s1.head.sampler=ddim,
-    # or s1.head.denoiser=transformer for the trajectory transformer)
+A recipe's ``s1`` stage runs it (``training.s1.*``) on the ``s1_data`` stages' folders.
 """
 
 from __future__ import annotations

@@ -8,13 +8,13 @@ plan vector of :mod:`vla_gr.agent.followers.s1_inputs`) and what the
 waypoint on the true map; STOP only when S2 asks and the goal is inside success distance).
 The labels never point at anything the agent has not observed: the teacher follows S2.
 
-    python -m vla_gr.training.s1_data outputs/dagger/s1_round0 checkpoints/vla_gr_cpu \
-        data/s1/round0 --workers 2
 
 A data folder holds ``part-*.safetensors`` (arrays: ``rgb`` (N, 3, s, s) uint8, ``depth``
 (N, 1, s, s) float16 metres, ``plan`` (N, P) float32, ``teacher`` (N, 3) float32 (v, w, stop),
 ``episode`` (N,) int64) and ``manifest.json`` with each part's sha256; :func:`load_s1_data`
 verifies them and refuses parts made for another S1 layout.
+
+A recipe's ``s1_data`` stage runs it (inputs: the rollouts, the agent that made them).
 """
 
 from __future__ import annotations

@@ -42,7 +42,7 @@ which the template readers already find what the lexicon reads comes out unchang
 template instructions reach the agent exactly as before.
 
 ``model.instruction_lexicon`` has no weights: its settings are inference settings
-(``python -m vla_gr.policy.export``), chosen on the validation paraphrase vocabulary.
+(``vla-gr export``), chosen on the validation paraphrase vocabulary.
 """
 
 from __future__ import annotations

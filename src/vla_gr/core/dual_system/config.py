@@ -97,7 +97,7 @@ class S1Config:
     on the same plans. ``use_s2=false`` never hands S1 a plan (the "without S2" ablation).
     """
 
-    kind: str = "pure_pursuit"  # until S1 is trained (python -m vla_gr.training.s1)
+    kind: str = "pure_pursuit"  # until S1 is trained (a recipe's s1 stage)
     image_size: int = 32  # S1's RGB-D input is average-pooled to this square size
     channels: list[int] = field(default_factory=lambda: [16, 32, 48, 64])  # conv stages
     dim: int = 96  # token width; the head's context_dim follows it (S1Policy sets it)
