@@ -139,7 +139,7 @@ class ApproachConfig:
     stop_visible_threshold: float = 0.0
     verify_steps: int = 12  # turning towards the goal before stopping anyway
     # at the end of the path to a goal it cannot stop at this long: reject the goal (0 = off)
-    dead_end_steps: int = 30  # val 120-319: with traps.recoveries, SR 0.585 -> 0.600
+    dead_end_steps: int = 30  # control steps stuck at the end of the path before rejecting
     # a confirmed goal the field has found no way to for this long on end (planning thinner
     # included): reject it, so that a false goal seen far off (through a door, on a wall)
     # neither holds the robot in thin, half-speed planning nor pulls at it all episode (0 = off)
