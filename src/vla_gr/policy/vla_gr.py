@@ -72,21 +72,12 @@ class VLAGRPolicy(NavigationPolicy):
             self.object_category,
             self.instruction_reader,
             self.instruction_lexicon,
-            device=self.device,
         )
 
     def use_perception(self, perception: Perception) -> None:
         """Drive with ``perception`` as S2's (the privileged ablations pass the true mask or
         a gated copy of :meth:`learned_perception`); a new episode starts."""
         self.dual_system = GroundedDualSystem.from_model_config(perception, self.config, self.s1)
-
-    def _apply(self, fn, *args, **kwargs):
-        """``.to()`` / ``.cuda()``: the perception follows the networks to their device."""
-        out = super()._apply(fn, *args, **kwargs)
-        perception = getattr(getattr(self, "dual_system", None), "perception", None)
-        if isinstance(perception, LearnedPerception):
-            perception.device = self.device
-        return out
 
     # ------------------------------------------------------------------ training
     def forward(self, batch: Mapping) -> dict[str, torch.Tensor]:

@@ -173,7 +173,7 @@ def s1_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
     return agent
 
 
-def _frame_part_stage(part: str, stage, cfg, inputs) -> Path:
+def _frame_part_stage(part: str, stage, cfg, folder: Path, inputs) -> Path:
     """Train ``model.<part>`` (``training.<part>``) of the input agent on the input store's
     frames; the product is the whole agent with it."""
     from vla_gr.training import object_category, room_type
@@ -181,7 +181,7 @@ def _frame_part_stage(part: str, stage, cfg, inputs) -> Path:
     checkpoint, store = _inputs(stage, inputs, 2)
     p = getattr(cfg.training, part)
     if part == "room_type":
-        labels, read, train = room_type.labels(p.settings), room_type.room_frames, None
+        labels, read = room_type.labels(p.settings), room_type.room_frames
         train = room_type.train_room_type
         extra = {}
     else:
@@ -189,7 +189,7 @@ def _frame_part_stage(part: str, stage, cfg, inputs) -> Path:
         train = object_category.train_object_category
         extra = {"background_weight": p.background_weight}
     frames = read(_store_of(store), labels, p.first, p.episodes, p.stride)
-    agent = inputs["__folder__"] / "agent"
+    agent = folder / "agent"
     train(
         checkpoint, agent, frames, labels, steps=p.steps, batch_size=p.batch_size, lr=p.lr,
         seed=cfg.seed, settings=p.settings, reject_threshold=p.reject_threshold, **extra,
@@ -199,12 +199,12 @@ def _frame_part_stage(part: str, stage, cfg, inputs) -> Path:
 
 def room_type_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
     """The room-type classifier (S2's room check) trained on the store's frames."""
-    return _frame_part_stage("room_type", stage, cfg, {**inputs, "__folder__": folder})
+    return _frame_part_stage("room_type", stage, cfg, folder, inputs)
 
 
 def object_category_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
     """The object-category segmenter (S2's object checks) trained on the store's frames."""
-    return _frame_part_stage("object_category", stage, cfg, {**inputs, "__folder__": folder})
+    return _frame_part_stage("object_category", stage, cfg, folder, inputs)
 
 
 def instruction_reader_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:

@@ -90,7 +90,6 @@ class LearnedPerception:
         room_type, object_category, instruction_reader, lexicon: optional checks and
             readers (None: the check passes, the field is read from template words only,
             the instruction is read as said).
-        device: where the networks run.
         gate: optional privileged pixel gate multiplied into the goal likelihood.
     """
 
@@ -102,7 +101,6 @@ class LearnedPerception:
         object_category: ObjectCategorySegmenter | None = None,
         instruction_reader: InstructionReader | None = None,
         lexicon: InstructionLexicon | None = None,
-        device: torch.device | str = "cpu",
         gate: PixelGate | None = None,
     ) -> None:
         self.config = config
@@ -111,7 +109,6 @@ class LearnedPerception:
         self.object_category = object_category
         self.instruction_reader = instruction_reader
         self.lexicon = lexicon
-        self.device = device
         self.gate = gate
         self._episode: _EpisodeReading | None = None
 
@@ -120,6 +117,11 @@ class LearnedPerception:
         copy = _copy.copy(self)
         copy.gate, copy._episode = gate, None
         return copy
+
+    @property
+    def device(self) -> torch.device:
+        """Where the networks run: the goal head's parameters' device (they move together)."""
+        return next(self.goal_head.parameters()).device
 
     @property
     def read_as(self) -> str | None:
