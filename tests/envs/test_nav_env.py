@@ -199,6 +199,113 @@ def test_stop_success_iff_within_success_distance(env, room):
     assert term and info["success"] == 0.0 and info["spl"] == 0.0 and reward == 0.0
 
 
+# ----------------------------------------------------------------------------- declared outcomes
+
+
+def test_declared_outcomes_are_exported():
+    from vla_gr.envs import DECLARED_OUTCOMES
+
+    assert DECLARED_OUTCOMES == ("not_understood", "not_found")
+
+
+@pytest.mark.parametrize("outcome", ["not_understood", "not_found"])
+def test_declare_ends_the_episode_without_moving_or_a_stop(env, room, outcome):
+    # 0.75 m from the chair: a STOP here would succeed, a declaration never does
+    obs, info = run_room(env, room, room_spec(4.0, 2.0, 0.0))
+    assert info["declared"] is None
+    for _ in range(2):  # turn in place: still within the success distance
+        obs, _, _, _, info = env.step(np.array([0.0, 0.5, -1.0], np.float32))
+        assert info["declared"] is None
+    u = env.unwrapped
+    pose, before = u.robot_pose_world(), dict(info)
+    obs, reward, terminated, truncated, info = u.declare(outcome)
+    assert (reward, terminated, truncated) == (0.0, True, False)
+    assert info["declared"] == outcome and info["collided"] is False
+    assert info["success"] == 0.0 and info["spl"] == 0.0
+    assert before["distance_to_goal"] <= 1.0  # where a STOP would have succeeded
+    np.testing.assert_array_equal(u.robot_pose_world(), pose)  # it did not move
+    assert info["steps"] == before["steps"] + 1  # one decision, standing still
+    assert info["path_length"] == before["path_length"]
+    assert info["distance_to_goal"] == pytest.approx(before["distance_to_goal"])
+    assert info["episode_id"] == "room-0" and env.observation_space.contains(obs)
+    np.testing.assert_array_equal(obs["pose"], u._last_obs["pose"])
+    with pytest.raises(
+        RuntimeError, match=r"step\(\) called before reset\(\) or after the episode"
+    ):
+        env.step(np.zeros(3, np.float32))
+    with pytest.raises(RuntimeError, match=r"declare\(\) called before reset\(\) or after the"):
+        u.declare(outcome)
+    _, info = run_room(env, room, room_spec(4.0, 2.0, 0.0))  # a new episode: nothing declared
+    assert info["declared"] is None
+    _, _, terminated, _, info = env.step(np.array([0.0, 0.0, 1.0], np.float32))
+    assert terminated and info["success"] == 1.0 and info["declared"] is None
+
+
+@pytest.mark.parametrize("bad", ["not understood", "NOT_FOUND", "success", None, 3])
+def test_an_unknown_outcome_is_refused_and_the_episode_goes_on(env, room, bad):
+    run_room(env, room, room_spec(1.0, 1.0, 0.0))
+    with pytest.raises(ValueError, match="valid: not_understood, not_found") as err:
+        env.unwrapped.declare(bad)
+    assert repr(bad) in str(err.value) and len(str(err.value).splitlines()) == 1
+    _, _, terminated, truncated, info = env.step(np.array([0.5, 0.0, -1.0], np.float32))
+    assert not (terminated or truncated) and info["steps"] == 1
+
+
+def test_declare_before_reset_is_the_error_step_gives():
+    env = gym.make(ENV_ID, image_size=32)
+    with pytest.raises(RuntimeError, match="before reset") as stepped:
+        env.unwrapped.step(np.zeros(3, np.float32))
+    with pytest.raises(RuntimeError, match="before reset") as declared:
+        env.unwrapped.declare("not_understood")
+    assert str(declared.value) == str(stepped.value).replace("step()", "declare()")
+    env.close()
+
+
+# ----------------------------------------------------------------------------- instructions
+
+
+def test_any_printable_unicode_instruction_reaches_the_observation_folded(env, room):
+    said = {
+        "I\u2019m looking for the sofa": "I'm looking for the sofa",
+        "the caf\u00e9 chair, Zo\u00eb\u2019s": "the cafe chair, Zoe's",
+        "the chair \u2014 the red one\u2026": "the chair - the red one...",
+        "the \u201cred\u201d chair \U0001fa91\U0001f642": 'the "red" chair',
+        "find\tthe\nred\x07 chair\x00": "find the red chair",
+        "\t  ": "",
+        "Find The RED chair": "Find The RED chair",  # case kept
+    }
+    for text, folded in said.items():
+        obs, _ = run_room(env, room, room_spec(1.0, 1.0, 0.0, instruction=text))
+        assert obs["instruction"] == folded and env.unwrapped.instruction == folded
+        assert env.observation_space.contains(obs)
+        assert env.unwrapped.episode_spec.instruction == text  # the spec stays as written
+        obs, *_ = env.step(np.array([0.0, 0.0, -1.0], np.float32))
+        assert obs["instruction"] == folded
+    # the limit applies to the folded text: 300 emoji and a short request fit
+    obs, _ = run_room(env, room, room_spec(1.0, 1.0, 0.0, instruction="\U0001f600" * 300 + "sofa"))
+    assert obs["instruction"] == "sofa"
+
+
+def test_an_instruction_too_long_after_folding_is_one_line_naming_the_limit(env, room):
+    from vla_gr.envs.nav_env import INSTRUCTION_MAX_LENGTH
+
+    fits = "x" * INSTRUCTION_MAX_LENGTH
+    obs, _ = run_room(env, room, room_spec(1.0, 1.0, 0.0, instruction=f"  {fits}\t"))
+    assert obs["instruction"] == fits
+    long = "find the chair " * 20  # 299 characters once stripped
+    with pytest.raises(ValueError) as err:
+        run_room(env, room, room_spec(1.0, 1.0, 0.0, instruction=long))
+    message = str(err.value)
+    assert len(message.splitlines()) == 1 and "room-0" in message
+    assert "299 characters" in message and f"limit of {INSTRUCTION_MAX_LENGTH}" in message
+    with pytest.raises(RuntimeError, match="before reset"):  # the failed reset ended it
+        env.step(np.zeros(3, np.float32))
+    with pytest.raises(ValueError, match="instruction must be a str, got bytes"):
+        run_room(env, room, room_spec(1.0, 1.0, 0.0, instruction=b"find the chair"))
+    obs, _ = run_room(env, room, room_spec(1.0, 1.0, 0.0))  # and the env is still usable
+    assert obs["instruction"] == "find the red chair"
+
+
 def test_truncation_is_a_failure(room):
     env = gym.make(ENV_ID, max_episode_steps=3)
     run_room(env, room, room_spec(1.0, 1.0, 0.0))

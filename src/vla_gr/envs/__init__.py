@@ -24,6 +24,9 @@ os.environ.setdefault("LP_NUM_THREADS", "0")
 from gymnasium.envs.registration import register, registry
 
 ENV_ID = "VLAGR/ObjectNav-v0"
+#: Outcomes an agent may declare instead of acting (``ObjectNavEnv.declare``): the request
+#: names nothing it can ground; the reachable house was searched and the goal is not in it.
+DECLARED_OUTCOMES: tuple[str, ...] = ("not_understood", "not_found")
 
 if ENV_ID not in registry:
     register(
@@ -53,7 +56,7 @@ _LAZY = {
     "RGBDRenderer": "vla_gr.envs.rendering",
 }
 
-__all__ = ["ENV_ID", *_LAZY]
+__all__ = ["DECLARED_OUTCOMES", "ENV_ID", *_LAZY]
 
 
 def __getattr__(name: str):

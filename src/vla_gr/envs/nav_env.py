@@ -4,7 +4,13 @@ Observation: ``rgb`` uint8 (H, W, 3), ``depth`` float32 (H, W, 1) planar metres 
 [0, max_depth], ``pose`` float32 (3,) = (x forward, y left, yaw) relative to the episode
 start, ``instruction`` str, and ``semantic`` int32 (H, W) instance ids when asked for.
 Action: float32 (3,) in [-1, 1] = (linear fraction of 0.5 m/s, angular fraction of
-1.0 rad/s, stop); stop > 0 ends the episode as the agent's STOP.
+1.0 rad/s, stop); stop > 0 ends the episode as the agent's STOP. An agent that does not act
+ends the episode with ``declare(outcome)`` instead (``"not_understood"``, ``"not_found"``):
+no motion, no STOP, ``info["declared"]`` names it (None after every other reset and step).
+
+Instruction: any printable Unicode; the observation's ``instruction`` is the spec's folded to
+printable ASCII (:func:`vla_gr.core.text_fold.fold_to_ascii`), at most
+``INSTRUCTION_MAX_LENGTH`` characters after folding (a longer one is refused at reset).
 
 Reward: 1 for a successful STOP, else 0 (ObjectNav is judged by ``info``'s metrics,
 which also carries ``collided`` for the last step).
@@ -34,6 +40,8 @@ import mujoco
 import numpy as np
 from gymnasium.vector.utils import read_from_shared_memory
 
+from vla_gr.core.text_fold import fold_to_ascii
+from vla_gr.envs import DECLARED_OUTCOMES
 from vla_gr.envs import robot as rb
 from vla_gr.envs.episodes import (
     EPISODES_PER_SCENE,
@@ -238,6 +246,7 @@ class ObjectNavEnv(gym.Env):
         self.house: House | None = None
         # ``spec`` stays gymnasium's EnvSpec (wrappers read it); the episode is ``episode_spec``.
         self.episode_spec: EpisodeSpec | None = None
+        self.instruction = ""  # the episode's instruction, folded to printable ASCII
         self.goal: ObjectInstance | None = None
         self.traversable: np.ndarray | None = None
         self.goal_distance: np.ndarray | None = None
@@ -278,8 +287,7 @@ class ObjectNavEnv(gym.Env):
         return obs, self._info()
 
     def step(self, action):
-        if self._done:
-            raise RuntimeError("step() called before reset() or after the episode ended")
+        self._require_running("step")
         act = self.check_action(action)  # (3,)
         scene = self._scene
         called_stop = bool(act[2] > 0.0)
@@ -314,6 +322,34 @@ class ObjectNavEnv(gym.Env):
         info["collided"] = bool(collided)
         reward = float(terminated and info["success"] > 0)  # sparse: the metrics judge
         return obs, reward, terminated, truncated, info
+
+    def declare(self, outcome: str):
+        """End the episode as the agent's declared ``outcome`` (one of ``DECLARED_OUTCOMES``)
+        instead of an action: the robot does not move and no STOP is called.
+
+        Returns ``(obs, 0.0, True, False, info)`` like :meth:`step`; the declaration counts as
+        one step in which the robot stood still, ``info`` holds the metrics (``success`` 0:
+        only a STOP succeeds) and ``info["declared"] = outcome``. The (3,) action and its
+        meaning are unchanged: a declaration is never an action.
+        """
+        if not isinstance(outcome, str) or outcome not in DECLARED_OUTCOMES:
+            raise ValueError(
+                f"outcome {outcome!r} is not a declared outcome; valid: "
+                f"{', '.join(DECLARED_OUTCOMES)}"
+            )
+        self._require_running("declare")
+        scene = self._scene
+        adr = scene.robot.qpos_adr
+        x, y = float(scene.data.qpos[adr[0]]), float(scene.data.qpos[adr[1]])
+        distance = distance_at(self.goal_distance, self.house.grid, x, y)
+        self._measures.update((x, y), distance, collided=False, called_stop=False)
+        self._steps += 1
+        self._done = True
+        obs = self._observe()
+        info = self._info()
+        info["collided"] = False
+        info["declared"] = outcome
+        return obs, 0.0, True, False, info
 
     def render(self):
         """The last RGB observation (H, W, 3) uint8 (``render_mode="rgb_array"``)."""
@@ -354,6 +390,10 @@ class ObjectNavEnv(gym.Env):
         if not 16 <= int(size) <= 1024:
             raise ValueError(f"size={size} must be in [16, 1024]")
         return self._renderer(int(size), False).render(self._require_scene().data)
+
+    def _require_running(self, call: str) -> None:
+        if self._done:
+            raise RuntimeError(f"{call}() called before reset() or after the episode ended")
 
     def _require_scene(self) -> _Scene:
         if self._scene is None:
@@ -422,11 +462,7 @@ class ObjectNavEnv(gym.Env):
 
     def _start_episode(self, spec: EpisodeSpec, house: House | None) -> None:
         self._scene, self._done = None, True  # the old episode is over even if this one fails
-        if not self.observation_space["instruction"].contains(spec.instruction):
-            raise ValueError(
-                f"episode {spec.episode_id}: instruction {spec.instruction!r} must be printable "
-                f"ASCII of at most {INSTRUCTION_MAX_LENGTH} characters"
-            )
+        instruction = self._fold_instruction(spec)
         scene = self._load_scene(spec, house)
         goal_field = scene.goal_fields.get(spec.goal_instance_id)
         if goal_field is None and spec.goal_instance_id in {
@@ -445,6 +481,7 @@ class ObjectNavEnv(gym.Env):
         self._scene = scene
         self.house = scene.house
         self.episode_spec = spec
+        self.instruction = instruction
         self.goal = scene.house.object(spec.goal_instance_id)
         self.traversable = scene.traversable
         self.goal_distance = goal_field
@@ -454,6 +491,23 @@ class ObjectNavEnv(gym.Env):
         self._measures.reset((spec.start_x, spec.start_y), start_distance)
         self._steps = 0
         self._done = False
+
+    @staticmethod
+    def _fold_instruction(spec: EpisodeSpec) -> str:
+        """The spec's instruction folded to printable ASCII (:func:`fold_to_ascii`);
+        ValueError in one line when it is not a str or folds to more than the limit."""
+        if not isinstance(spec.instruction, str):
+            raise ValueError(
+                f"episode {spec.episode_id}: instruction must be a str, "
+                f"got {type(spec.instruction).__name__}"
+            )
+        folded = fold_to_ascii(spec.instruction)
+        if len(folded) > INSTRUCTION_MAX_LENGTH:
+            raise ValueError(
+                f"episode {spec.episode_id}: instruction of {len(folded)} characters is longer "
+                f"than the limit of {INSTRUCTION_MAX_LENGTH}; say it in fewer words"
+            )
+        return folded
 
     def _renderer(self, size: int, main: bool) -> RGBDRenderer:
         scene = self._require_scene()
@@ -487,7 +541,7 @@ class ObjectNavEnv(gym.Env):
             "rgb": rgb,
             "depth": depth[..., None],  # (H, W, 1)
             "pose": pose.astype(np.float32),  # (3,)
-            "instruction": self.episode_spec.instruction,
+            "instruction": self.instruction,
         }
         if self.semantic:
             obs["semantic"] = renderer.render_segmentation(scene.data)  # (H, W)
@@ -497,4 +551,5 @@ class ObjectNavEnv(gym.Env):
     def _info(self) -> dict:
         info = self._measures.as_info()
         info["episode_id"] = self.episode_spec.episode_id
+        info["declared"] = None  # the outcome of a declare(), which alone sets it
         return info
