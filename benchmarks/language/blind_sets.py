@@ -68,12 +68,14 @@ def load_set(path: str | Path) -> list[dict]:
 
 
 def episodes_file(rows: list[dict], words: str, out: str | Path) -> Path:
-    """An episodes file of the set, instruction = the request or the generator's words."""
+    """An episodes file of the set, instruction = the request or the generator's words; a
+    request's episode carries the generator's fields as its ``description``."""
     specs = []
     for row in rows:
         record = dict(row["spec"])
         if words == "request":
             record["instruction"] = row["request"]
+            record["description"] = dict(row["fields"])
         specs.append(EpisodeSpec.from_dict(record))
     return save_episodes(out, specs)
 

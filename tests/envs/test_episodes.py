@@ -1,8 +1,10 @@
 """Episode specs: start sampling, validation reasons, JSONL round trip, determinism."""
 
 import dataclasses
+import hashlib
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -161,6 +163,60 @@ def test_load_episodes_errors_name_the_problem(tmp_path):
     (tmp_path / "empty.jsonl").write_text("\n")
     with pytest.raises(ValueError, match="no episodes"):
         load_episodes(tmp_path / "empty.jsonl")
+
+
+OLD_KEYS = {
+    "episode_id", "split", "scene_seed", "num_rooms", "clutter", "start_x", "start_y",
+    "start_yaw", "goal_instance_id", "goal_category", "instruction", "geodesic_start_distance",
+}  # fmt: skip
+SHIPPED = (
+    Path(__file__).parents[2] / "benchmarks/results/eval/episodes/test0-499_unreachable_fired.jsonl"
+)
+
+
+def test_a_spec_without_description_writes_exactly_the_old_record(tmp_path):
+    spec = make_spec(box_room_house(), 1.0, 1.0)
+    assert spec.description is None and set(spec.to_dict()) == OLD_KEYS
+    path = save_episodes(tmp_path / "old.jsonl", [spec])
+    old = {k: v for k, v in dataclasses.asdict(spec).items() if k != "description"}
+    assert path.read_text() == json.dumps(old, sort_keys=True) + "\n"
+    assert EpisodeSpec.from_dict(old) == spec  # an old record loads
+    assert EpisodeSpec.from_dict(dict(old, description=None)) == spec  # and asdict's form
+    assert hash(spec) == hash(EpisodeSpec.from_dict(old))
+
+
+@pytest.mark.skipif(not SHIPPED.is_file(), reason="shipped episodes file not in this checkout")
+def test_a_shipped_episodes_file_is_rewritten_byte_for_byte(tmp_path):
+    specs = load_episodes(SHIPPED)
+    assert all(s.description is None for s in specs)
+    again = save_episodes(tmp_path / "again.jsonl", specs)
+    digest = hashlib.sha256(SHIPPED.read_bytes()).hexdigest()
+    assert hashlib.sha256(again.read_bytes()).hexdigest() == digest
+
+
+def test_a_description_round_trips_and_is_checked(tmp_path):
+    house = box_room_house()
+    fields = {"category": "chair", "color": "red", "room": None, "near": "table"}
+    spec = make_spec(house, 1.0, 1.0, instruction="that red seat by the table", description=fields)
+    assert spec.to_dict()["description"] == fields
+    other = make_spec(house, 1.0, 1.0)
+    path = save_episodes(tmp_path / "mixed.jsonl", [spec, other])
+    lines = [json.loads(x) for x in path.read_text().splitlines()]
+    assert lines[0]["description"] == fields and "description" not in lines[1]
+    assert load_episodes(path) == [spec, other]
+    assert hash(spec) == hash(dataclasses.replace(spec, description=None))  # still hashable
+    for bad, message in [
+        ({"category": "chair"}, "keys"),
+        ({**fields, "colour": "red"}, "keys"),
+        ("chair", "got str"),
+        ({**fields, "room": 3}, "str or None"),
+    ]:
+        with pytest.raises(ValueError, match=message):
+            make_spec(house, 1.0, 1.0, description=bad)
+        record = dict(spec.to_dict(), description=bad)
+        path.write_text(json.dumps(record) + "\n")
+        with pytest.raises(ValueError, match=rf"mixed.jsonl:1: bad episode record.*{message}"):
+            load_episodes(path)
 
 
 # ----------------------------------------------------------------------------- split episodes

@@ -46,9 +46,19 @@ class NoEpisodeError(ValueError):
     unique description, or no start at a valid distance from any goal (rare)."""
 
 
+#: The keys of an episode's ``description`` (the generator's fields of its goal).
+DESCRIPTION_FIELDS: tuple[str, ...] = ("category", "color", "room", "near")
+
+
 @dataclass(frozen=True)
 class EpisodeSpec:
-    """One ObjectNav episode. Poses are in world metres / radians."""
+    """One ObjectNav episode. Poses are in world metres / radians.
+
+    ``description`` (optional) holds the generator's fields of the goal
+    (``DESCRIPTION_FIELDS``, None where not named) for an episode whose ``instruction`` is a
+    hand-written request; it is written to files and dicts only when set, so specs without
+    one read and write exactly as before.
+    """
 
     episode_id: str
     split: str
@@ -62,6 +72,10 @@ class EpisodeSpec:
     goal_category: str
     instruction: str
     geodesic_start_distance: float
+    description: dict | None = dataclasses.field(default=None, hash=False)
+
+    def __post_init__(self) -> None:
+        check_description(self.description, self.episode_id)
 
     @property
     def scene_key(self) -> tuple[int, int | None, float]:
@@ -74,13 +88,18 @@ class EpisodeSpec:
         return np.array([self.start_x, self.start_y, self.start_yaw], dtype=np.float64)
 
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        """The fields as a dict; ``description`` only when set."""
+        out = dataclasses.asdict(self)
+        if out["description"] is None:
+            del out["description"]
+        return out
 
     @classmethod
     def from_dict(cls, record: dict) -> EpisodeSpec:
-        """Build from a dict with exactly the dataclass fields (ValueError otherwise)."""
+        """Build from a dict with exactly the dataclass fields, ``description`` optional
+        (ValueError otherwise)."""
         names = {f.name for f in dataclasses.fields(cls)}
-        missing, extra = names - set(record), set(record) - names
+        missing, extra = names - set(record) - {"description"}, set(record) - names
         if missing or extra:
             raise ValueError(
                 f"episode record has missing fields {sorted(missing)} / "
@@ -93,6 +112,22 @@ class EpisodeSpec:
         for key in ("scene_seed", "goal_instance_id"):
             rec[key] = int(rec[key])
         return cls(**rec)
+
+
+def check_description(description, episode_id: str = "?") -> None:
+    """ValueError naming the problem unless ``description`` is None or a dict with exactly
+    the keys ``DESCRIPTION_FIELDS``, each a str or None."""
+    if description is None:
+        return
+    if not isinstance(description, dict) or set(description) != set(DESCRIPTION_FIELDS):
+        got = sorted(description) if isinstance(description, dict) else type(description).__name__
+        raise ValueError(
+            f"episode {episode_id}: description must be a dict with the keys "
+            f"{list(DESCRIPTION_FIELDS)}, got {got}"
+        )
+    bad = {k: v for k, v in description.items() if v is not None and not isinstance(v, str)}
+    if bad:
+        raise ValueError(f"episode {episode_id}: description values must be str or None: {bad}")
 
 
 def episode_rng(split: str, index: int) -> np.random.Generator:
