@@ -445,3 +445,108 @@ def test_an_agent_that_never_confirms_a_goal_is_flagged(tmp_path):
 
 
 SHORT = ["env.max_episode_steps=20"]
+
+
+class ReadsRequests(EvalAgent):
+    """Reads each request as a fixed table says (keyed by the observed, folded instruction),
+    declares ``not_understood`` on a request it did not understand, else stands still."""
+
+    def __init__(self, table: dict[str, dict]) -> None:
+        self.table = table
+        self.said: str | None = None
+        self.declared: str | None = None
+
+    def reset(self, seed: int | None = None) -> None:
+        self.said = self.declared = None
+
+    def act(self, obs) -> np.ndarray:
+        self.said = obs["instruction"]
+        if not self.table[self.said]["understood"]:
+            self.declared = "not_understood"
+        return np.array([0.0, 0.0, -1.0], np.float32)
+
+    @property
+    def declared_outcome(self) -> str | None:
+        return self.declared
+
+    def reading(self) -> dict | None:
+        return None if self.said is None else self.table[self.said]
+
+
+def _reading(understood: bool, **fields) -> dict:
+    named = {"category": None, "color": None, "room": None, "anchor": None, **fields}
+    return {
+        **named,
+        "relation": "near" if named["anchor"] else None,
+        "confidence": {},
+        "unknown": [],
+        "understood": understood,
+        "reason": None,
+    }
+
+
+def test_a_request_not_understood_is_declared_counted_and_reported(tmp_path, monkeypatch, capsys):
+    from vla_gr.envs.episodes import sample_episode, save_episodes
+    from vla_gr.envs.instructions import parse_instruction
+
+    a, b = sample_episode("val", 0), sample_episode("val", 1)
+    fields = parse_instruction(a.instruction)
+    piano = dataclasses.replace(
+        a, instruction="I\u2019m looking for the piano \U0001f3b9", description=fields
+    )
+    file = save_episodes(tmp_path / "requests.jsonl", [piano, b, a])
+    read_b = parse_instruction(b.instruction)
+    wrong_a = dict(fields, color="purple" if fields["color"] != "purple" else "green")
+    table = {
+        "I'm looking for the piano": _reading(False),  # what the agent observes: folded
+        b.instruction: _reading(
+            True, **{k: read_b[k] for k in ("category", "color", "room")}, anchor=read_b["near"]
+        ),
+        a.instruction: _reading(
+            True, **{k: wrong_a[k] for k in ("category", "color", "room")}, anchor=wrong_a["near"]
+        ),
+    }
+    monkeypatch.setitem(AGENTS, "reads", lambda cfg, env: ReadsRequests(table))
+    out = tmp_path / "reads"
+    args = [
+        f"output_dir={out}",
+        *[x for x in FAST if "gif_per_cause" not in x],
+        "eval.gif_per_cause=1",
+        "agent=reads",
+        f"episodes={file}",
+        "env.max_episode_steps=5",
+    ]
+    assert run_from_cli("config_debug", args) == 0
+    printed = capsys.readouterr().out.strip().splitlines()
+    assert printed[-1] == "1 of 3 requests were not fully understood"
+
+    rows = rows_of(out)
+    declared, other = rows[0], rows[1]
+    assert declared["declared"] == "not_understood" and declared["cause"] == "not_understood"
+    assert declared["stopped"] is False and declared["metrics"]["success"] == 0.0
+    assert declared["metrics"]["steps"] == len(declared["actions"]) == 1  # no wandering
+    assert declared["reading"] == table["I'm looking for the piano"]
+    assert declared["spec"]["description"] == fields
+    assert declared["spec"]["instruction"] == piano.instruction  # the spec as written
+    assert other["declared"] is None and other["metrics"]["steps"] == 5
+    assert other["cause"] in ("timeout_goal_seen", "timeout_goal_never_seen")
+    assert "description" not in other["spec"]
+
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["declared"] == {"not_understood": 1, "not_found": 0}
+    assert metrics["not_understood"] == 1 and metrics["requests_read"] == 3
+    assert metrics["failure_causes"]["not_understood"] == 1
+    assert "reworded_instructions" not in metrics
+
+    report = (out / "report.md").read_text()
+    assert "- 1 of 3 requests were not fully understood." in report
+    assert "not_understood 1, not_found 0" in report
+    section = report.split("## Readings that differ from the episode's description")[1]
+    section = section.split("\n## ")[0]
+    assert "2 reading(s) differ" in section
+    listed = [
+        line for line in section.splitlines() if line.startswith("| ") and "episode" not in line
+    ]
+    assert [line.split("|")[1].strip() for line in listed] == ["0", "2"]  # b's reading agrees
+    assert "(not understood)" in listed[0] and f"color={wrong_a['color']}" in listed[1]
+    assert list(out.glob("episode_0000_not_understood*.gif"))  # replayed with its declaration

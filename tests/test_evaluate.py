@@ -18,6 +18,8 @@ class Scripted:
     same action; counts its resets."""
 
     last_timings: dict[str, float] = {}  # one part: the decision
+    declared_outcome: str | None = None  # it never declares
+    reading = None  # it reads no request
 
     def __init__(self, action) -> None:
         self.action = np.asarray(action, dtype=np.float32)  # (3,)
@@ -91,3 +93,83 @@ def test_rollout_leaves_the_callers_torch_random_stream_alone():
     torch.manual_seed(123)
     rollout_policy(Scripted([0.0, 0.0, 1.0]), ENV, [0, 1], "cpu")  # seeds each episode
     assert torch.equal(torch.rand(3), expected)
+
+
+class FakeReading:
+    """What a ``Reading`` gives the eval: ``as_dict()``."""
+
+    def as_dict(self) -> dict:
+        fields = {"category": "sofa", "color": None, "room": None, "anchor": None}
+        return {**fields, "relation": None, "confidence": {"category": 0.9}, "unknown": [],
+                "understood": True, "reason": None}  # fmt: skip
+
+
+class DeclaresAfter(Scripted):
+    """Drives forward; after its ``after``-th action it has declared ``outcome``."""
+
+    def __init__(self, outcome: str, after: int) -> None:
+        super().__init__([1.0, 0.0, -1.0])
+        self.outcome, self.after, self.calls = outcome, after, 0
+
+    def reset(self) -> None:
+        super().reset()
+        self.calls = 0
+
+    def select_action(self, obs) -> np.ndarray:
+        self.calls += 1
+        return super().select_action(obs)
+
+    @property
+    def declared_outcome(self) -> str | None:
+        return self.outcome if self.calls >= self.after else None
+
+    @property
+    def reading(self) -> FakeReading:
+        return FakeReading()
+
+
+@pytest.mark.parametrize("outcome", ["not_understood", "not_found"])
+def test_a_declared_outcome_ends_the_episode_through_the_env_without_a_stop(outcome):
+    from vla_gr.data.collect import make_env
+    from vla_gr.evaluation.agents import PolicyAgent
+    from vla_gr.evaluation.runner import run_episode
+
+    env = make_env(dict(ENV, max_episode_steps=20))
+    try:
+        row = run_episode(env, PolicyAgent(DeclaresAfter(outcome, after=3)), 0)
+        plain = run_episode(env, PolicyAgent(Scripted([1.0, 0.0, -1.0])), 0)
+    finally:
+        env.close()
+    assert row["declared"] == outcome and row["cause"] == outcome
+    assert row["stopped"] is False and row["wrong_stop"] is None and row["stopped_near"] == {}
+    assert row["metrics"]["steps"] == 3 and row["metrics"]["success"] == 0.0
+    assert row["metrics"]["spl"] == 0.0
+    assert row["actions"] == [[1.0, 0.0, -1.0]] * 3  # the declaring step's action is recorded
+    xy = row["trace"]["xy"]
+    assert xy[1] != xy[0] and xy[2] != xy[1] and xy[3] == xy[2]  # declared: did not move
+    assert row["reading"] == FakeReading().as_dict()
+    # a policy that never declares: the budget ends it, nothing declared, no reading
+    assert plain["declared"] is None and plain["reading"] is None
+    assert plain["metrics"]["steps"] == 20 and plain["cause"] != outcome
+
+
+def test_agents_forward_what_their_policy_or_system_declared_and_read():
+    from types import SimpleNamespace
+
+    from vla_gr.evaluation.agents import EvalAgent, PolicyAgent, UntrainedDualSystemAgent
+
+    plain = EvalAgent()
+    assert plain.declared_outcome is None and plain.reading() is None
+    assert PolicyAgent(Scripted([0, 0, 0])).reading() is None
+    policy = DeclaresAfter("not_understood", after=1)
+    agent = PolicyAgent(policy)
+    assert agent.declared_outcome is None  # before its first action it has not declared
+    agent.act({"rgb": np.zeros((16, 16, 3), np.uint8)})
+    assert agent.declared_outcome == "not_understood"
+    assert agent.reading() == FakeReading().as_dict()
+    system = SimpleNamespace(declared_outcome="not_found", reading=FakeReading())
+    untrained = UntrainedDualSystemAgent(system)
+    assert untrained.declared_outcome == "not_found"
+    assert untrained.reading() == FakeReading().as_dict()
+    system.declared_outcome, system.reading = None, None
+    assert untrained.declared_outcome is None and untrained.reading() is None

@@ -8,7 +8,8 @@ flushed as each finishes), ``metrics.json``, ``report.md`` with bar charts, top-
 and GIFs. Run again with the same ``output_dir`` after a kill and it resumes: finished
 rows are read back, the rest run, and ``metrics.json`` equals an uninterrupted run's.
 ``--config-name compare agents=[a,b]`` runs several agents on the same episodes and
-writes ``compare.md`` / ``compare.json``.
+writes ``compare.md`` / ``compare.json``. After the table it prints, for an agent that reads
+requests, how many it did not fully understand.
 
 ``rollout_policy`` / ``summarize`` (from :mod:`vla_gr.evaluation.runner`, re-exported) are
 the library calls training's closed-loop validation uses: the same episode loop.
@@ -75,13 +76,25 @@ def run_from_cli(config_name: str, overrides: Sequence[str]) -> int:
 
     _, cfg = load_config(config_name, expand_aliases(overrides))
     if cfg.eval.agents:
-        table = compare(cfg)["table"]
+        result = compare(cfg)
+        lines = [result["table"]]
+        for agent, metrics in result["metrics"].items():
+            lines += [f"{agent}: {line}" for line in understood_lines(metrics)]
     else:
         metrics = evaluate(cfg)
-        table = format_table({metrics["agent"]: table_row(metrics)})
-    sys.stdout.write(table + "\n")
+        lines = [format_table({metrics["agent"]: table_row(metrics)}), *understood_lines(metrics)]
+    sys.stdout.write("\n".join(lines) + "\n")
     sys.stdout.flush()
     return 0
+
+
+def understood_lines(metrics: dict) -> list[str]:
+    """``["N of M requests were not fully understood"]`` when the agent read any request
+    (``metrics.json``'s ``not_understood`` and ``requests_read``), else []."""
+    read = metrics.get("requests_read", 0)
+    if not read:
+        return []
+    return [f"{metrics['not_understood']} of {read} requests were not fully understood"]
 
 
 if __name__ == "__main__":

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from vla_gr.envs import DECLARED_OUTCOMES
 from vla_gr.evaluation.causes import (
     CAUSES,
     REJECTED_GOAL_KINDS,
@@ -16,11 +17,16 @@ from vla_gr.evaluation.causes import (
     wrong_stop_kind,
 )
 from vla_gr.evaluation.summary import (
+    MISMATCHES_LISTED,
     cause_counts,
+    declared_counts,
+    episode_description,
     latency,
+    not_understood_count,
     overall,
+    reading_mismatches,
+    readings,
     rejected_goal_counts,
-    reworded_instructions,
     without_timing,
     wrong_stop_counts,
 )
@@ -124,26 +130,101 @@ def test_rejected_goals_are_counted_by_reason_and_the_failures_they_preceded():
     assert rejected_goal_counts([{"cause": None}]) == {}
 
 
-def test_reworded_instructions_are_the_rows_s2_read_in_other_words():
-    def row(index, said, read_as, success):
-        agent = {} if read_as is None else {"read_as": read_as}
-        return {
-            "episode_index": index,
-            "spec": {"instruction": said},
-            "agent": agent,
-            "metrics": {"success": success},
-        }
+def test_a_declared_outcome_is_the_cause_and_comes_before_the_others():
+    xy = np.zeros((30, 2))  # standing still: "stuck" without the declaration
+    assert set(DECLARED_OUTCOMES) <= set(CAUSES)
+    for outcome in DECLARED_OUTCOMES:
+        assert failure_cause(False, False, xy, [500], [0.2], TH, declared=outcome) == outcome
+    assert failure_cause(False, False, xy, [500], [0.2], TH) == "stuck"
+    with pytest.raises(ValueError, match="valid: not_understood, not_found"):
+        failure_cause(False, False, xy, [0], [], TH, declared="lost")
 
+
+def _reading(understood=True, **fields) -> dict:
+    base = dict.fromkeys(("category", "color", "room", "anchor"))
+    return {
+        **base,
+        **fields,
+        "relation": None,
+        "confidence": {},
+        "unknown": [],
+        "understood": understood,
+        "reason": None if understood else "no goal named",
+    }
+
+
+def _read_row(index, instruction, reading, description=None, declared=None) -> dict:
+    spec = {"instruction": instruction}
+    if description is not None:
+        spec["description"] = description
+    return {"episode_index": index, "spec": spec, "reading": reading, "declared": declared}
+
+
+def test_declared_outcomes_and_requests_not_understood_are_counted():
     rows = [
-        row(0, "find the sofa", "find the sofa", 1.0),  # template: read as said
-        row(1, "the couch, please", "find the sofa", 1.0),
-        row(2, "where is the telly?", "find the bed", 0.0),
-        row(3, "find the chair", None, 0.0),  # an agent without a lexicon
+        _read_row(0, "find the piano", _reading(False), declared="not_understood"),
+        _read_row(1, "find the red chair", _reading(category="chair", color="red")),
+        _read_row(2, "find the sofa", _reading(category="sofa"), declared="not_found"),
+        _read_row(3, "the chair that isn't red", _reading(False), declared="not_understood"),
+        {"episode_index": 4, "spec": {"instruction": "find the bed"}},  # an older run's row
+        _read_row(5, "find the bed", None),  # an agent without a reader
     ]
-    out = reworded_instructions(rows)
-    assert out["episodes"] == 2 and out["success"] == 0.5
-    assert out["listed"] == [
-        {"episode": 1, "instruction": "the couch, please", "read_as": "find the sofa"},
-        {"episode": 2, "instruction": "where is the telly?", "read_as": "find the bed"},
+    assert declared_counts(rows) == {"not_understood": 2, "not_found": 1}
+    assert list(declared_counts(rows[4:])) == list(DECLARED_OUTCOMES)
+    assert sum(declared_counts(rows[4:]).values()) == 0
+    assert [r["episode_index"] for r in readings(rows)] == [0, 1, 2, 3]
+    assert not_understood_count(rows) == 2 and not_understood_count(rows[4:]) == 0
+
+
+def test_an_episodes_description_is_its_own_else_what_its_instruction_says():
+    fields = {"category": "chair", "color": "red", "room": None, "near": "tv_monitor"}
+    said = {"instruction": "that red seat by the telly", "description": fields}
+    want = {"category": "chair", "color": "red", "room": None, "anchor": "tv_monitor"}
+    assert episode_description(said) == want
+    generated = {"instruction": "find the blue sofa in the living room next to the plant"}
+    assert episode_description(generated) == {
+        "category": "sofa",
+        "color": "blue",
+        "room": "living_room",
+        "anchor": "plant",
+    }
+    assert episode_description({"instruction": "bring me the piano"}) is None
+    assert episode_description({"instruction": "x", "description": None}) is None
+
+
+def test_readings_that_differ_from_the_description_are_listed():
+    red_chair = {"category": "chair", "color": "red", "room": None, "near": None}
+    rows = [
+        _read_row(0, "find the red chair", _reading(category="chair", color="red")),  # agrees
+        _read_row(1, "the red seat", _reading(category="chair"), red_chair),  # no colour
+        _read_row(2, "find the red chair", _reading(category="chair", color="blue")),
+        _read_row(3, "bring me the piano", _reading(False)),  # no description: not compared
+        _read_row(4, "the chair that isn't red", _reading(False), red_chair),
+        _read_row(5, "find the bed near the tv", _reading(category="bed", anchor="tv_monitor")),
+        _read_row(6, "find the bed near the tv", _reading(category="bed", anchor="plant")),
+        _read_row(7, "find the red chair", None),  # no reading
     ]
-    assert reworded_instructions(rows[:1] + rows[3:]) == {}
+    out = reading_mismatches(rows)
+    assert out["episodes"] == 4
+    assert [m["episode"] for m in out["listed"]] == [1, 2, 4, 6]
+    first = out["listed"][0]
+    assert first["request"] == "the red seat"
+    assert first["reading"] == {
+        "category": "chair",
+        "color": None,
+        "room": None,
+        "anchor": None,
+        "understood": True,
+    }
+    assert first["description"] == {
+        "category": "chair",
+        "color": "red",
+        "room": None,
+        "anchor": None,
+    }
+    assert out["listed"][2]["reading"]["understood"] is False
+    assert out["listed"][3]["description"]["anchor"] == "tv_monitor"
+    limited = reading_mismatches(rows, limit=2)
+    assert limited["episodes"] == 4 and len(limited["listed"]) == 2
+    many = [_read_row(i, "find the sofa", _reading(category="bed")) for i in range(25)]
+    assert len(reading_mismatches(many)["listed"]) == MISMATCHES_LISTED == 20

@@ -3,8 +3,11 @@
 An agent (an :class:`EvalAgent`) has ``reset(seed)`` (episode start; ``seed`` makes any
 randomness replayable), ``act(obs) -> float32 (3,)``, ``parameters() -> {part: count}``,
 ``last_timings`` ({part: seconds} of its latest ``act``, e.g. ``{"s1": .., "s2": ..}``; {}:
-the whole ``act`` is one "decision") and ``episode_summary() -> dict`` (e.g. its goal
-confidence; kept in the episode's row under ``agent``).
+the whole ``act`` is one "decision"), ``episode_summary() -> dict`` (e.g. its goal
+confidence; kept in the episode's row under ``agent``), ``declared_outcome`` (the outcome it
+declared instead of acting, e.g. ``"not_understood"``; None while it acts: the episode loop
+then calls ``env.unwrapped.declare(outcome)`` instead of ``env.step``) and ``reading() -> dict
+| None`` (how it read the request, kept in the row under ``reading``; None without a reader).
 
 A factory receives ``(cfg, env)``: the validated ``VLAGRConfig`` and the environment the
 agent will run in, so that privileged agents (the geodesic expert) can read the world.
@@ -174,6 +177,17 @@ class EvalAgent:
         """What the agent concluded this episode, kept in its row."""
         return {}
 
+    @property
+    def declared_outcome(self) -> str | None:
+        """The outcome the agent declared after its latest ``act`` instead of acting (one of
+        ``vla_gr.envs.DECLARED_OUTCOMES``; that action was no STOP); None while it acts."""
+        return None
+
+    def reading(self) -> dict | None:
+        """How the agent read this episode's request (``Reading.as_dict()``: fields,
+        confidences, unknown words, understood, reason); None for an agent without a reader."""
+        return None
+
     def parameters(self) -> dict[str, int]:
         """Parameter count per part plus ``total`` ({} without networks)."""
         return {}
@@ -181,7 +195,8 @@ class EvalAgent:
 
 class PolicyAgent(EvalAgent):
     """A navigation policy (``reset()``, ``select_action(obs) -> (1, A)``,
-    ``episode_summary()``, ``last_timings``) as an eval agent.
+    ``episode_summary()``, ``last_timings``, ``declared_outcome``, ``reading``) as an eval
+    agent.
 
     ``reset(seed)`` also seeds torch so that stochastic heads replay per episode.
     """
@@ -208,6 +223,16 @@ class PolicyAgent(EvalAgent):
         read the instruction, ...; {} for an end-to-end policy)."""
         return self.policy.episode_summary()
 
+    @property
+    def declared_outcome(self) -> str | None:
+        """The policy's declared outcome (``NavigationPolicy.declared_outcome``)."""
+        return self.policy.declared_outcome
+
+    def reading(self) -> dict | None:
+        """The policy's reading of the request as a dict (None when it has none)."""
+        reading = self.policy.reading
+        return None if reading is None else reading.as_dict()
+
     def parameters(self) -> dict[str, int]:
         return module_parameters(self.policy) if isinstance(self.policy, nn.Module) else {}
 
@@ -231,6 +256,16 @@ class UntrainedDualSystemAgent(EvalAgent):
 
     def episode_summary(self) -> dict:
         return self.system.episode_summary()
+
+    @property
+    def declared_outcome(self) -> str | None:
+        """The dual system's declared outcome (a request not understood)."""
+        return self.system.declared_outcome
+
+    def reading(self) -> dict | None:
+        """The dual system's reading of the request as a dict (None when it has none)."""
+        reading = self.system.reading
+        return None if reading is None else reading.as_dict()
 
 
 def true_mask_agent(cfg, env) -> PolicyAgent | UntrainedDualSystemAgent:

@@ -2,6 +2,10 @@
 
 One cause per failed episode, checked in this order:
 
+- ``not_understood``: the agent declared that the request names nothing it can ground, and
+  ended the episode without acting (``env.unwrapped.declare``);
+- ``not_found``: the agent declared that it searched the reachable house and the goal is not
+  in it;
 - ``stopped_at_distractor``: STOP called within ``success_distance`` (geodesic) of another
   object of the goal's category;
 - ``stopped_elsewhere``: any other wrong STOP;
@@ -26,12 +30,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from vla_gr.envs import DECLARED_OUTCOMES
+
 CAUSES: tuple[str, ...] = (
     "stopped_at_distractor",
     "stopped_elsewhere",
     "stuck",
     "timeout_goal_never_seen",
     "timeout_goal_seen",
+    *DECLARED_OUTCOMES,
 )
 
 
@@ -65,15 +72,21 @@ def failure_cause(
     goal_pixels: Sequence[int],
     distractor_distances: Sequence[float],
     th: CauseThresholds,
+    declared: str | None = None,
 ) -> str | None:
     """The cause of a failed episode (None for a success); see the module docstring.
 
     ``xy`` (T+1, 2) world positions from the start, ``goal_pixels`` (T+1,) goal-instance
     pixel counts per observation, ``distractor_distances`` geodesic distances (m) from the
-    final position to each same-category distractor.
+    final position to each same-category distractor, ``declared`` the outcome that ended the
+    episode (``info["declared"]``; None when none was declared).
     """
+    if declared is not None and declared not in DECLARED_OUTCOMES:
+        raise ValueError(f"declared={declared!r}; valid: {', '.join(DECLARED_OUTCOMES)}")
     if success:
         return None
+    if declared is not None:
+        return declared
     if stopped:
         near = [d for d in distractor_distances if d <= th.success_distance]
         return "stopped_at_distractor" if near else "stopped_elsewhere"

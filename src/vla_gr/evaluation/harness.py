@@ -219,7 +219,8 @@ def evaluate(cfg, agent: str | None = None) -> dict:
 
 
 def compare(cfg) -> dict:
-    """Run every agent of ``eval.agents`` on the same episodes; write compare.md/json."""
+    """Run every agent of ``eval.agents`` on the same episodes; write compare.md/json.
+    Returns the output folder, the table, its rows and each agent's metrics.json."""
     import dataclasses
 
     from vla_gr.envs.metrics import format_table
@@ -231,10 +232,10 @@ def compare(cfg) -> dict:
         check_agent(agent, cfg)
     _, _, source = plan_episodes(cfg)
     out_dir = _output_dir(cfg, "compare", source)
-    rows, setups = {}, {}
+    rows, setups, runs = {}, {}, {}
     for agent in agents:
         sub = dataclasses.replace(cfg.eval, output_dir=str(out_dir / agent))
-        metrics = evaluate(dataclasses.replace(cfg, eval=sub), agent)
+        runs[agent] = metrics = evaluate(dataclasses.replace(cfg, eval=sub), agent)
         rows[agent], setups[agent] = table_row(metrics), agent_row(metrics)
     table = format_table(rows)
     both = {k: {**setups[k], **rows[k]} for k in agents}
@@ -242,4 +243,4 @@ def compare(cfg) -> dict:
     (out_dir / "compare.md").write_text(
         f"# Comparison on {source}\n\n{table}\n\n## Agents\n\n{agents_table(setups)}\n"
     )
-    return {"output_dir": str(out_dir), "table": table, "rows": both}
+    return {"output_dir": str(out_dir), "table": table, "rows": both, "metrics": runs}

@@ -1,4 +1,6 @@
-"""``report.md`` of an eval run: the table, breakdown bar charts, top-down pictures, GIFs.
+"""``report.md`` of an eval run: the table, breakdown bar charts, failure causes, requests
+not understood and readings that differ from their episode's description, top-down pictures,
+GIFs.
 
 Pictures are made after the run, never in its loop: a selected episode is replayed from its
 recorded actions (the env is deterministic given ``reset(seed=k)``, noise included) while
@@ -15,7 +17,12 @@ import numpy as np
 
 from vla_gr.envs.metrics import format_table
 from vla_gr.evaluation.causes import CAUSES
-from vla_gr.evaluation.summary import BREAKDOWNS, LOW_GOAL_CONFIDENCE
+from vla_gr.evaluation.summary import (
+    BREAKDOWNS,
+    COMPARED_FIELDS,
+    LOW_GOAL_CONFIDENCE,
+    reading_mismatches,
+)
 
 log = logging.getLogger(__name__)
 
@@ -83,7 +90,10 @@ def replay_pictures(env, row: dict, out_dir: Path, panel: int, stride: int) -> d
     recorder.add(*u.render_rgbd(panel), u.robot_pose_world())
     actions = row["actions"]
     for t, action in enumerate(actions, start=1):
-        env.step(np.asarray(action, dtype=np.float32))
+        if t == len(actions) and row.get("declared"):
+            u.declare(row["declared"])  # how the episode ended: no motion, no STOP
+        else:
+            env.step(np.asarray(action, dtype=np.float32))
         if t % stride == 0 or t == len(actions):
             recorder.add(*u.render_rgbd(panel), u.robot_pose_world())
     final = u.robot_pose_world()[:2]
@@ -127,6 +137,60 @@ def breakdown_chart(metrics: dict, path: Path) -> Path:
     return path
 
 
+def _cell(text: str) -> str:
+    """``text`` as one markdown table cell (whitespace runs to one space, pipes escaped)."""
+    text = " ".join(str(text).split()).replace("|", "\\|")
+    return text or "(blank)"
+
+
+def _fields(fields: dict) -> str:
+    """'category=chair color=red' for the named fields ('nothing' when none is)."""
+    named = [f"{k}={fields[k]}" for k, _ in COMPARED_FIELDS if fields.get(k) is not None]
+    return " ".join(named) or "nothing"
+
+
+def declared_lines(metrics: dict) -> list[str]:
+    """The report's lines on declared outcomes and requests not understood ([] for a run
+    whose agent declared nothing and read no request)."""
+    declared = metrics.get("declared") or {}
+    read = metrics.get("requests_read", 0)
+    if not any(declared.values()) and not read:
+        return []
+    lines = ["", "## Requests and declared outcomes", ""]
+    if read:
+        lines.append(f"- {metrics['not_understood']} of {read} requests were not fully understood.")
+    if any(declared.values()):
+        what = ", ".join(f"{outcome} {n}" for outcome, n in declared.items())
+        lines.append(f"- Episodes the agent ended by declaring an outcome (no STOP): {what}.")
+    return lines
+
+
+def reading_lines(rows: Sequence[dict]) -> list[str]:
+    """The report's table of readings that differ from their episode's description (the
+    first ``MISMATCHES_LISTED``; [] when every reading agrees or no row has one)."""
+    mismatches = reading_mismatches(rows)
+    if not mismatches["episodes"]:
+        return []
+    lines = [
+        "",
+        "## Readings that differ from the episode's description",
+        "",
+        f"{mismatches['episodes']} reading(s) differ in category, colour, room or anchor"
+        f" (the first {len(mismatches['listed'])} listed):",
+        "",
+        "| episode | request | reading | description |",
+        "|---|---|---|---|",
+    ]
+    for m in mismatches["listed"]:
+        reading = _fields(m["reading"]) + (
+            "" if m["reading"]["understood"] else " (not understood)"
+        )
+        lines.append(
+            f"| {m['episode']} | {_cell(m['request'])} | {reading} | {_fields(m['description'])} |"
+        )
+    return lines
+
+
 def write_report(out_dir: Path, metrics: dict, rows: Sequence[dict], pictures: dict) -> Path:
     """Write ``report.md`` (and ``breakdowns.png``) into ``out_dir``; returns the md path."""
     chart = breakdown_chart(metrics, out_dir / "breakdowns.png")
@@ -166,20 +230,8 @@ def write_report(out_dir: Path, metrics: dict, rows: Sequence[dict], pictures: d
             f"the instructed object, confidence < {LOW_GOAL_CONFIDENCE}): "
             + ", ".join(str(i) for i in low[:50]),
         ]
-    reworded = metrics.get("reworded_instructions") or {}
-    if reworded:
-        lines += [
-            "",
-            f"**Reworded instructions**: S2 read {reworded['episodes']} instruction(s) in "
-            f"template words (instruction lexicon; SR {reworded['success']:.3f} on them):",
-            "",
-            "| episode | instruction | read as |",
-            "|---|---|---|",
-        ]
-        lines += [
-            f"| {r['episode']} | {r['instruction']} | {r['read_as']} |"
-            for r in reworded["listed"][:10]
-        ]
+    lines += declared_lines(metrics)
+    lines += reading_lines(rows)
     lines += ["", "## Latency per decision (ms, batch 1)", ""]
     if metrics["latency_ms"]:
         lines += [format_table(metrics["latency_ms"]), ""]

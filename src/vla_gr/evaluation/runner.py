@@ -142,15 +142,20 @@ def run_episode(
 ) -> dict:
     """Run ``agent`` on episode ``index`` (``env.reset(seed=index)``); the episode's row.
 
+    After each ``agent.act`` an agent that declared an outcome (``agent.declared_outcome``)
+    ends the episode through ``env.unwrapped.declare(outcome)`` instead of ``env.step`` (its
+    action, no STOP, is still recorded).
+
     Row keys: ``episode_index``, ``episode_id``, ``spec``, ``metrics`` (the final info),
-    ``stopped``, ``cause`` (None on success), ``num_rooms``, ``goal_category``,
-    ``instruction_kind``, ``distractor_distances``, ``stopped_near`` (the nearest object) and
-    ``wrong_stop`` (its :func:`wrong_stop_kind`) after a wrong STOP, ``rejected_goals`` (each
-    goal the agent rejected: reason, kind and nearest object; see :func:`_rejected_goals`),
-    ``trace`` (``xy`` (T+1, 2),
-    ``goal_pixels`` (T+1,) or -1 without semantic, ``distance`` (T+1,)), ``actions``
-    (T, 3), ``latency_ms`` ({part: (T,)}), ``parameters``, ``agent`` (the agent's
-    ``episode_summary()``, {} without one).
+    ``stopped`` (a STOP ended it; False when declared), ``cause`` (None on success; the
+    outcome's name when declared), ``declared`` (the outcome, else None), ``reading`` (the
+    agent's ``reading()``: how it read the request, None without a reader), ``num_rooms``,
+    ``goal_category``, ``instruction_kind``, ``distractor_distances``, ``stopped_near`` (the
+    nearest object) and ``wrong_stop`` (its :func:`wrong_stop_kind`) after a wrong STOP,
+    ``rejected_goals`` (each goal the agent rejected: reason, kind and nearest object; see
+    :func:`_rejected_goals`), ``trace`` (``xy`` (T+1, 2), ``goal_pixels`` (T+1,) or -1
+    without semantic, ``distance`` (T+1,)), ``actions`` (T, 3), ``latency_ms`` ({part:
+    (T,)}), ``parameters``, ``agent`` (the agent's ``episode_summary()``, {} without one).
     """
     th = thresholds or CauseThresholds(success_distance=env.unwrapped.success_distance)
     obs, info = env.reset(seed=int(index))
@@ -172,7 +177,11 @@ def run_episode(
             latency.setdefault("decision", []).append(elapsed * 1e3)
             for part, seconds in agent.last_timings.items():
                 latency.setdefault(part, []).append(seconds * 1e3)
-            obs, _, terminated, truncated, info = env.step(action)
+            outcome = agent.declared_outcome
+            if outcome is None:
+                obs, _, terminated, truncated, info = env.step(action)
+            else:  # the agent does not act on this episode: no motion, no STOP
+                obs, _, terminated, truncated, info = u.declare(outcome)
             actions.append([float(a) for a in np.asarray(action, dtype=np.float32)])
             pose = u.robot_pose_world()
             xy.append((float(pose[0]), float(pose[1])))
@@ -180,13 +189,20 @@ def run_episode(
             distance.append(float(info["distance_to_goal"]))
     metrics = {k: info[k] for k in FINAL_KEYS}
     metrics = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in metrics.items()}
-    stopped = bool(terminated)
+    declared = info["declared"]
+    stopped = bool(terminated) and declared is None
     wrong_stop = stopped and not metrics["success"]
     distractor = _distractor_distances(env, xy[-1]) if wrong_stop else {}
     near = _nearest_object(env, xy[-1]) if wrong_stop else {}
     spec = u.episode_spec
     cause = failure_cause(
-        bool(metrics["success"]), stopped, np.array(xy), pixels, list(distractor.values()), th
+        bool(metrics["success"]),
+        stopped,
+        np.array(xy),
+        pixels,
+        list(distractor.values()),
+        th,
+        declared=declared,
     )
     summary = agent.episode_summary()
     goal = _object_summary(u.house, u.goal)
@@ -197,6 +213,8 @@ def run_episode(
         "metrics": metrics,
         "stopped": stopped,
         "cause": cause,
+        "declared": declared,
+        "reading": agent.reading(),
         "num_rooms": len(u.house.rooms),
         "goal_category": spec.goal_category,
         "instruction_kind": instruction_kind(spec.instruction),

@@ -1,4 +1,5 @@
-"""``metrics.json`` from episode rows: means, breakdowns, failure causes, latency, parameters.
+"""``metrics.json`` from episode rows: means, breakdowns, failure causes, declared outcomes,
+requests not understood, latency, parameters.
 
 Everything except ``latency_ms`` and ``timing`` (wall-clock measurements) is a pure function
 of the rows, so a resumed run writes the same ``metrics.json`` as an uninterrupted one.
@@ -10,6 +11,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from vla_gr.envs import DECLARED_OUTCOMES
 from vla_gr.envs.metrics import aggregate
 from vla_gr.evaluation.causes import CAUSES, REJECTED_GOAL_KINDS, WRONG_STOP_KINDS
 
@@ -112,31 +114,69 @@ def low_confidence_episodes(rows: Sequence[dict]) -> list[int]:
     ]
 
 
-#: Reworded instructions listed in ``metrics.json`` (every row keeps its own ``read_as``).
-REWORDED_LISTED = 20
+def declared_counts(rows: Sequence[dict]) -> dict[str, int]:
+    """Episodes ended by each declared outcome (every outcome listed, zeros included; rows of
+    older runs have no ``declared``)."""
+    counts = dict.fromkeys(DECLARED_OUTCOMES, 0)
+    for r in rows:
+        if r.get("declared") is not None:
+            counts[r["declared"]] += 1
+    return counts
 
 
-def reworded_instructions(rows: Sequence[dict]) -> dict:
-    """Episodes whose instruction S2 read in other words (the agent's ``read_as``: the
-    instruction lexicon's template phrasing): how many, their success rate, and the first
-    ``REWORDED_LISTED`` as {episode, instruction, read_as}; {} when there are none."""
-    reworded = [
-        r for r in rows if r.get("agent", {}).get("read_as") not in (None, r["spec"]["instruction"])
-    ]
-    if not reworded:
-        return {}
-    return {
-        "episodes": len(reworded),
-        "success": float(np.mean([r["metrics"]["success"] for r in reworded])),
-        "listed": [
-            {
-                "episode": r["episode_index"],
-                "instruction": r["spec"]["instruction"],
-                "read_as": r["agent"]["read_as"],
-            }
-            for r in reworded[:REWORDED_LISTED]
-        ],
-    }
+def readings(rows: Sequence[dict]) -> list[dict]:
+    """The rows whose agent read the request (a ``reading`` that is not None)."""
+    return [r for r in rows if r.get("reading") is not None]
+
+
+def not_understood_count(rows: Sequence[dict]) -> int:
+    """Rows whose reading says the request was not understood."""
+    return sum(not r["reading"]["understood"] for r in readings(rows))
+
+
+#: Readings that differ from their episode's description, listed in the report.
+MISMATCHES_LISTED = 20
+#: A reading's fields and the keys of an episode's description they are compared with.
+COMPARED_FIELDS = (("category", "category"), ("color", "color"), ("room", "room"),
+                   ("anchor", "near"))  # fmt: skip
+
+
+def episode_description(spec: dict) -> dict | None:
+    """What episode ``spec`` (a dict) asks for, as reading fields {category, color, room,
+    anchor}: its ``description`` when it has one (a hand-written request), else what
+    :func:`~vla_gr.envs.instructions.parse_instruction` finds in its instruction; None when
+    that finds no category."""
+    from vla_gr.envs.instructions import parse_instruction
+
+    fields = spec.get("description")
+    if fields is None:
+        fields = parse_instruction(spec["instruction"])
+        if fields["category"] is None:
+            return None
+    return {mine: fields[theirs] for mine, theirs in COMPARED_FIELDS}
+
+
+def reading_mismatches(rows: Sequence[dict], limit: int = MISMATCHES_LISTED) -> dict:
+    """Rows whose reading differs from the episode's description in any field: how many, and
+    the first ``limit`` as {episode, request, reading, description} (reading and description
+    as {category, color, room, anchor}; the reading also with ``understood``)."""
+    listed, count = [], 0
+    for r in readings(rows):
+        want = episode_description(r["spec"])
+        got = {k: r["reading"].get(k) for k, _ in COMPARED_FIELDS}
+        if want is None or got == want:
+            continue
+        count += 1
+        if len(listed) < limit:
+            listed.append(
+                {
+                    "episode": r["episode_index"],
+                    "request": r["spec"]["instruction"],
+                    "reading": {**got, "understood": r["reading"]["understood"]},
+                    "description": want,
+                }
+            )
+    return {"episodes": count, "listed": listed}
 
 
 def summarize_rows(
@@ -163,7 +203,9 @@ def summarize_rows(
         "wrong_stops": wrong_stop_counts(rows),
         "rejected_goals": rejected_goal_counts(rows),
         "low_goal_confidence": low_confidence_episodes(rows),
-        "reworded_instructions": reworded_instructions(rows),
+        "declared": declared_counts(rows),
+        "requests_read": len(readings(rows)),
+        "not_understood": not_understood_count(rows),
         "parameters": rows[0]["parameters"],
         "latency_ms": latency(rows),
         "timing": {
