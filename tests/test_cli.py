@@ -10,7 +10,7 @@ import imageio.v3 as iio
 import pytest
 
 from vla_gr import __version__
-from vla_gr.cli import COMMANDS, main
+from vla_gr.cli import COMMANDS, TOOLS, main
 
 
 def test_help_lists_commands(capsys):
@@ -18,9 +18,9 @@ def test_help_lists_commands(capsys):
         main(["--help"])
     assert exc.value.code == 0
     out = capsys.readouterr().out
-    for name in ("collect", "demo", "train", "store"):
+    for name in ("collect", "demo", "train", "store", "read"):
         assert name in out
-    assert set(COMMANDS) >= {"collect", "demo", "train"}
+    assert set(COMMANDS) >= {"collect", "demo", "train"} and set(TOOLS) == {"read"}
 
 
 def test_version(capsys):

@@ -3,7 +3,9 @@
 Every app subcommand takes ``--config-name NAME``, Hydra ``key=value`` overrides and
 ``--verbose``, and is also runnable as ``python -m vla_gr.<module>``. ``vla-gr store
 verify PATH`` checks an episode store, ``vla-gr store copy SRC DST`` rewrites one;
-``vla-gr export SRC DST [key=value ...]`` writes a checkpoint for shipping.
+``vla-gr export SRC DST [key=value ...]`` writes a checkpoint for shipping;
+``vla-gr read TEXT [checkpoint=PATH]`` prints how an agent reads a request (exit 0 when
+understood, 3 when not).
 Errors a user causes end in one or two lines on stderr and exit code 2 (see
 ``vla_gr.configs.command``).
 """
@@ -22,6 +24,7 @@ from vla_gr.configs.command import (
     configure_logging,
     run_command,
 )
+from vla_gr.read_cli import add_read_arguments
 
 # subcommand -> ("module:function", one-line help). Functions take (config_name, overrides).
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -29,6 +32,14 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("vla_gr.demo:run_from_cli", "run episodes, print metrics, write GIF + top-down PNG"),
     "eval": ("vla_gr.evaluate:run_from_cli", "closed-loop evaluation of an agent: metrics, report"),
     "train": ("vla_gr.train:run_from_cli", "train the agent (single process or under torchrun)"),
+}
+#: Commands that read one text: name -> ("module:function", one-line help). Functions take
+#: (text, settings): the text and its ``key=value`` settings.
+TOOLS: dict[str, tuple[str, str]] = {
+    "read": (
+        "vla_gr.read_cli:run_from_cli",
+        "read a request as the agent does: fields, confidences, understood or not",
+    ),
 }
 
 
@@ -89,6 +100,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="write renamed model keys by their new names (values unchanged), drop removed ones",
     )
     add_verbose_argument(export)
+    read_help = TOOLS["read"][1]
+    read = sub.add_parser("read", help=read_help, description=f"{read_help}; exit 3 when not")
+    add_read_arguments(read)
     return parser
 
 
@@ -160,6 +174,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             args.rename_keys,
             verbose=args.verbose,
         )
+    if args.command in TOOLS:
+        func = _resolve(TOOLS[args.command][0])
+        return run_command(prog, func, args.text, args.settings, verbose=args.verbose)
     func = _resolve(COMMANDS[args.command][0])
     return run_command(prog, func, args.config_name, args.overrides, verbose=args.verbose)
 
