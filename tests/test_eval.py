@@ -411,10 +411,11 @@ class _BlindPerception:
     """Perceives a goal likelihood of zero everywhere (an instruction that names nothing it
     can ground)."""
 
-    read_as = None
-
     def reset(self) -> None:
         pass
+
+    def read(self, instruction: str) -> None:
+        return None  # it reads no request into fields: it acts on every one
 
     def perceive(self, obs) -> Percept:
         return Percept(np.zeros(obs["depth"].shape[:2], np.float32))  # (H, W)

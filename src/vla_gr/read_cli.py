@@ -89,7 +89,7 @@ def load_reader(path: str):
 def format_reading(text: str, reading) -> list[str]:
     """Aligned lines of ``reading`` (a ``Reading``) of request ``text``: the request,
     understood, each field with its confidence, the unknown words, the reason."""
-    from vla_gr.core.text_fold import fold_to_ascii
+    from vla_gr.text_fold import fold_to_ascii
 
     fields = reading.as_dict()
     confidence = fields.get("confidence") or {}

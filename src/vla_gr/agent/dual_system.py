@@ -6,6 +6,11 @@ One control step of :class:`GroundedDualSystem` (batch 1, the env's observation)
     S2       X    .    .    X    .    .    X        perception.perceive() -> Navigator.plan()
     S1       X    X    X    X    X    X    X        S1 acts on the latest plan
 
+Before its first step the request is read (the perception's reader); a request it did not
+understand is not acted on: the step returns no motion and no STOP, and
+:attr:`GroundedDualSystem.declared_outcome` says ``"not_understood"`` (the caller ends the
+episode with ``env.unwrapped.declare``).
+
 S2 = a perception (:mod:`vla_gr.agent.perception.percept`: one typed percept per tick: the goal
 likelihood, the room and object checks, the relation's anchor) + the
 :class:`~vla_gr.core.gr_field.Navigator` (map, masses, potential, metric, geodesic; look
@@ -27,6 +32,7 @@ import numpy as np
 from vla_gr.agent.followers import LearnedFollower, PurePursuit, PursuitConfig, S1Policy
 from vla_gr.agent.navigator import Navigator, NavigatorConfig, NavPlan
 from vla_gr.agent.perception.percept import Percept, Perception
+from vla_gr.agent.reading import Reading
 from vla_gr.core.dual_system import plan_interval
 from vla_gr.core.gr_field import GRFieldConfig
 
@@ -65,7 +71,8 @@ class GroundedDualSystem:
             self.follower = LearnedFollower(s1, guard=guard)
         self.plan_every = self.navigator.plan_every
         #: seconds of the last step's parts: ``s1`` always; on planner ticks ``s2`` and its two
-        #: parts, ``s2_perception`` (the percept) and ``s2_navigator`` (GR field + rules)
+        #: parts, ``s2_perception`` (the percept) and ``s2_navigator`` (GR field + rules); on
+        #: an episode's first step ``read`` (the request read into fields, once per episode)
         self.last_timings: dict[str, float] = {}
         self.reset()
 
@@ -97,13 +104,14 @@ class GroundedDualSystem:
         self.plan: NavPlan | None = None
         self.last_percept: Percept | None = None  # of the last S2 tick
         self.max_goal_confidence = 0.0
+        self.reading: Reading | None = None  # this episode's request, once read
+        self.declared_outcome: str | None = None  # "not_understood": it does not act
 
     def episode_summary(self) -> dict:
         """What S2 concluded this episode: the highest goal confidence, the last mode, the
         goals it rejected (how many, and each one's reason, tick and position in the
         episode-start frame), the times it was trapped, the evidence behind its STOP
-        request ({} without one) and, when the perception reworded the instruction, how
-        it read it (``read_as``)."""
+        request ({} without one)."""
         summary = {
             "goal_confidence": round(float(self.max_goal_confidence), 4),
             "last_mode": None if self.plan is None else self.plan.mode,
@@ -112,8 +120,7 @@ class GroundedDualSystem:
             "traps": int(self.navigator.traps),
             "stop_evidence": dict(self.navigator.stop_evidence),
         }
-        read_as = self.perception.read_as
-        return summary | ({"read_as": read_as} if read_as is not None else {})
+        return summary
 
     def plan_if_due(self, obs: Mapping) -> dict[str, float] | None:
         """S2's part of a control step: on a planner tick, one percept and a new plan
@@ -141,8 +148,20 @@ class GroundedDualSystem:
         return {"s2": t1 - t0, "s2_perception": t_perceived - t0, "s2_navigator": t1 - t_perceived}
 
     def step(self, obs: Mapping) -> np.ndarray:
-        """One control step on a single env observation -> action float32 (3,) (v, w, stop)."""
-        timings = self.plan_if_due(obs) or {}
+        """One control step on a single env observation -> action float32 (3,) (v, w, stop);
+        no motion and no STOP, with ``declared_outcome`` set, for a request not understood."""
+        read = {}
+        if self.steps == 0 or self.reading is not None:  # read once; later steps hit its cache
+            t0 = time.perf_counter()
+            self.reading = self.perception.read(obs["instruction"])
+            if self.steps == 0:
+                read["read"] = time.perf_counter() - t0  # the episode's one reading
+            if self.reading is not None and not self.reading.understood:
+                self.declared_outcome = "not_understood"
+                self.last_timings = read
+                self.steps += 1
+                return np.zeros(3, dtype=np.float32)
+        timings = (self.plan_if_due(obs) or {}) | read
         t1 = time.perf_counter()
         depth = np.asarray(obs["depth"], dtype=np.float32)  # (H, W, 1)
         pose = np.asarray(obs["pose"], dtype=np.float64).reshape(3)  # (3,)

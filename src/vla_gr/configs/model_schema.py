@@ -7,8 +7,8 @@ Nests one config per component; each lives beside its component in ``vla_gr.core
 :mod:`vla_gr.agent.navigator.config` (one section per concern), ``model.schedule``
 and ``model.s1``: :mod:`vla_gr.core.dual_system.config`, ``model.pursuit``:
 :mod:`vla_gr.agent.followers.pure_pursuit`, ``model.goal_head``, ``model.grounding``,
-``model.room_type``, ``model.object_category``, ``model.instruction_reader`` and
-``model.instruction_lexicon``: :mod:`vla_gr.agent.perception`), so the defaults are written once.
+``model.room_type``, ``model.object_category``: :mod:`vla_gr.agent.perception`,
+``model.instruction_reader``: :mod:`vla_gr.agent.reading`), so the defaults are written once.
 The seed's latent ``DualSystemArchitecture`` (:class:`~vla_gr.core.dual_system.DualSystemConfig`)
 is a building block no agent runs: it has no section here.
 
@@ -25,11 +25,10 @@ from vla_gr.agent.navigator.config import NavigatorConfig
 from vla_gr.agent.perception import (
     GoalHeadConfig,
     GroundingConfig,
-    InstructionLexiconConfig,
-    InstructionReaderConfig,
     ObjectCategoryConfig,
     RoomTypeConfig,
 )
+from vla_gr.agent.reading import ReaderConfig
 from vla_gr.core.diffusion_policy.config import HeadConfig
 from vla_gr.core.dual_system.config import S1Config, ScheduleConfig
 from vla_gr.core.encoders.config import EncodersConfig
@@ -50,8 +49,6 @@ FOLLOWS = {
     ("head", "context_dim"): "encoders.dim",
     ("instruction_reader", "categories"): "object_category.categories",
     ("instruction_reader", "room_types"): "room_type.room_types",
-    ("instruction_lexicon", "categories"): "object_category.categories",
-    ("instruction_lexicon", "room_types"): "room_type.room_types",
 }
 
 
@@ -87,7 +84,7 @@ class ModelConfig:
     """The agent: observation layout, one config per component, freezing and PEFT.
 
     The fields in ``FOLLOWS`` (``head.action_dim``, ``head.horizon``, ``head.context_dim``,
-    ``categories`` / ``room_types`` of ``instruction_reader`` and ``instruction_lexicon``)
+    ``categories`` / ``room_types`` of ``instruction_reader``)
     follow the model's keys (set those); setting them to something else fails.
     ``model.agent=dual_system`` composes ``goal_head`` (S2's grounding), ``navigator`` on
     ``gr_field`` (S2's plan) and ``s1`` (the learned S1; ``pursuit`` when
@@ -111,12 +108,9 @@ class ModelConfig:
     object_category: ObjectCategoryConfig = field(
         default_factory=ObjectCategoryConfig
     )  # S2's object-category check
-    instruction_reader: InstructionReaderConfig = field(
-        default_factory=InstructionReaderConfig
-    )  # what the checks read from non-template wording
-    instruction_lexicon: InstructionLexiconConfig = field(
-        default_factory=InstructionLexiconConfig
-    )  # non-template wording said again in template words, before S2 reads it
+    instruction_reader: ReaderConfig = field(
+        default_factory=ReaderConfig
+    )  # the request read into fields: what the goal head and the checks look for
     navigator: NavigatorConfig = field(default_factory=NavigatorConfig)  # S2's behaviour
     schedule: ScheduleConfig = field(default_factory=ScheduleConfig)  # S2 and S1 rates
     pursuit: PursuitConfig = field(default_factory=PursuitConfig)  # S1 ablation: follower
@@ -137,7 +131,7 @@ class ModelConfig:
         check_choice("model.agent", self.agent, AGENTS)
         for name in self.freeze:
             check_choice(f"model.freeze[] (model.agent={self.agent})", name, FREEZABLE[self.agent])
-        for check in ("room_type", "object_category", "instruction_reader", "instruction_lexicon"):
+        for check in ("room_type", "object_category", "instruction_reader"):
             if getattr(self, check).enabled and self.agent != "dual_system":
                 raise ValueError(
                     f"model.{check}.enabled=true needs model.agent=dual_system (got {self.agent})"

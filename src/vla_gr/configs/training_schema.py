@@ -65,24 +65,27 @@ class FramePartStageConfig:
 
 @dataclass
 class ReaderStageConfig:
-    """The instruction reader trained by a recipe stage on generated instructions
-    (``training.instruction_reader``)."""
+    """The instruction reader trained by a recipe stage on generated requests and
+    calibrated on hand-written development sets (``training.instruction_reader``)."""
 
-    count: int = 12000  # generated training instructions
-    steps: int = 1500
-    batch_size: int = 256
-    lr: float = 2e-3
-    eval_count: int = 2000  # instructions per reported vocabulary
-    token_dropout: float = 0.0  # probability a training token is hidden from the attention
+    count: int = 12000  # generated training requests
+    steps: int = 2000
+    batch_size: int = 128
+    lr: float = 3e-3
+    # hand-written development requests (JSONL, paths from the working directory)
+    dev_sets: list[str] = field(
+        default_factory=lambda: [
+            "benchmarks/language/dev_requests.jsonl",
+            "benchmarks/language/dev_not_understood.jsonl",
+        ]
+    )
     settings: list[str] = field(default_factory=list)  # instruction_reader.* model settings
 
     def __post_init__(self) -> None:
-        for key in ("count", "steps", "batch_size", "lr", "eval_count"):
+        for key in ("count", "steps", "batch_size", "lr"):
             check_positive(f"training.instruction_reader.{key}", getattr(self, key))
-        if not 0.0 <= self.token_dropout < 1.0:
-            raise ValueError(
-                f"training.instruction_reader.token_dropout={self.token_dropout} must be in [0, 1)"
-            )
+        if not self.dev_sets:
+            raise ValueError("training.instruction_reader.dev_sets must name at least one file")
 
 
 @dataclass

@@ -9,7 +9,7 @@ ends the episode with ``declare(outcome)`` instead (``"not_understood"``, ``"not
 no motion, no STOP, ``info["declared"]`` names it (None after every other reset and step).
 
 Instruction: any printable Unicode; the observation's ``instruction`` is the spec's folded to
-printable ASCII (:func:`vla_gr.core.text_fold.fold_to_ascii`), at most
+printable ASCII (:func:`vla_gr.text_fold.fold_to_ascii`), at most
 ``INSTRUCTION_MAX_LENGTH`` characters after folding (a longer one is refused at reset).
 
 Reward: 1 for a successful STOP, else 0 (ObjectNav is judged by ``info``'s metrics,
@@ -40,7 +40,6 @@ import mujoco
 import numpy as np
 from gymnasium.vector.utils import read_from_shared_memory
 
-from vla_gr.core.text_fold import fold_to_ascii
 from vla_gr.envs import DECLARED_OUTCOMES
 from vla_gr.envs import robot as rb
 from vla_gr.envs.episodes import (
@@ -59,6 +58,7 @@ from vla_gr.envs.rendering import RGBDRenderer, make_gl_context, tune_model_for_
 from vla_gr.envs.scene import House, ObjectInstance
 from vla_gr.geometry.pose2d import wrap_angle
 from vla_gr.geometry.robot_spec import MAX_ANGULAR_SPEED, MAX_LINEAR_SPEED
+from vla_gr.text_fold import fold_to_ascii
 
 logger = logging.getLogger(__name__)
 

@@ -309,7 +309,7 @@ def true_category_agent(cfg, env) -> PolicyAgent:
     the instructed instance among same-category ones, but never fires on another category.
     Between ``checkpoint`` and ``true_mask`` it tells how much of the gap is category
     recognition. Needs a dual-system ``eval.checkpoint`` (with ``eval.model_overrides``); its
-    room and object checks and its instruction lexicon, if it has them, run as in the
+    room and object checks and its instruction reader, if it has them, run as in the
     checkpoint's agent.
     """
     from vla_gr.agent.perception.percept import TrueCategoryGate

@@ -89,6 +89,20 @@ class NavigationPolicy(nn.Module):
         """What the agent concluded this episode, kept in the episode's eval row."""
         return {}
 
+    @property
+    def declared_outcome(self) -> str | None:
+        """The outcome this agent declared this episode instead of acting on
+        (``"not_understood"``, ``"not_found"``; see ``vla_gr.envs.DECLARED_OUTCOMES``);
+        None while it acts. Its last action was no STOP: the caller ends the episode with
+        ``env.unwrapped.declare(outcome)``."""
+        return None
+
+    @property
+    def reading(self):
+        """How the agent read this episode's request (a ``Reading``), None before its first
+        step or for an agent that reads no request into fields."""
+        return None
+
     def validation_step(self, batch: Mapping) -> tuple[torch.Tensor, dict[str, int]]:
         """Held-out loss (scalar) of ``batch`` and confusion counts to sum over batches."""
         return self(batch)["loss"].float(), {}

@@ -117,6 +117,16 @@ REMOVED_KEYS: dict[str, str] = {
         "gate",
     )
 }  # fmt: skip
+_LEXICON = "said requests again in template words; the instruction reader reads them now"
+REMOVED_KEYS |= {
+    f"instruction_lexicon.{key}": _LEXICON
+    for key in (
+        "enabled", "word_senses", "locative_senses", "place_senses", "clause_places",
+        "noun_heads", "room_margin", "room_threshold", "category_margin", "colors",
+        "categories", "room_types",
+    )
+}  # fmt: skip
+REMOVED_KEYS["instruction_reader.fields"] = "chose the fields of the old reader; it reads all"
 #: Model settings a loaded checkpoint may change (no weight depends on them): the planner,
 #: its GR field, which S1 drives and how it samples, the follower, the S2 schedule, the goal
 #: head's inference options (category gate, test-time flip) and the segmenter's relation
@@ -125,7 +135,8 @@ INFERENCE_SETTINGS = (
     "navigator.",
     "pursuit.",
     "gr_field.",
-    "instruction_lexicon.",
+    "instruction_reader.temperature",
+    "instruction_reader.min_confidence",
     "schedule.planning_frequency_hz",
     "goal_head.category_gate",
     "goal_head.test_time_flip",

@@ -25,14 +25,13 @@ from vla_gr.agent.followers import S1Policy
 from vla_gr.agent.observations import as_instructions
 from vla_gr.agent.perception import (
     GoalHead,
-    InstructionLexicon,
-    InstructionReader,
     ObjectCategorySegmenter,
     RoomTypeClassifier,
     goal_head_loss,
     mask_confusion,
 )
 from vla_gr.agent.perception.percept import LearnedPerception, Perception
+from vla_gr.agent.reading import InstructionReader, Reading
 from vla_gr.configs.model_schema import ModelConfig
 from vla_gr.policy.base import NavigationPolicy
 
@@ -55,9 +54,6 @@ class VLAGRPolicy(NavigationPolicy):
         self.instruction_reader = (
             InstructionReader(c.instruction_reader) if c.instruction_reader.enabled else None
         )
-        self.instruction_lexicon = (
-            InstructionLexicon(c.instruction_lexicon) if c.instruction_lexicon.enabled else None
-        )
         # the learned S1 is built whatever s1.kind says, so one checkpoint serves both kinds
         self.s1 = S1Policy(c.s1)
         self.freeze_parts()
@@ -71,7 +67,6 @@ class VLAGRPolicy(NavigationPolicy):
             self.room_type,
             self.object_category,
             self.instruction_reader,
-            self.instruction_lexicon,
         )
 
     def use_perception(self, perception: Perception) -> None:
@@ -166,6 +161,23 @@ class VLAGRPolicy(NavigationPolicy):
 
     def episode_summary(self) -> dict:
         return self.dual_system.episode_summary()
+
+    @property
+    def declared_outcome(self) -> str | None:
+        return self.dual_system.declared_outcome
+
+    @property
+    def reading(self) -> Reading | None:
+        return self.dual_system.reading
+
+    def read(self, request: str) -> Reading:
+        """How this agent reads ``request``: its fields, confidences, the words it could not
+        place, and whether it would act on it (RequestError for a non-str or over-long one)."""
+        if self.instruction_reader is not None:
+            return self.instruction_reader.read(request)
+        from vla_gr.agent.perception.percept import template_reading
+
+        return template_reading(request, self.config)[0]
 
     @torch.no_grad()
     def select_action(self, obs: Mapping) -> torch.Tensor:

@@ -208,17 +208,16 @@ def object_category_stage(stage, cfg, resolved, folder: Path, inputs, services) 
 
 
 def instruction_reader_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
-    """The instruction reader (``training.instruction_reader``) trained on generated
-    instructions, written with the input agent."""
+    """The instruction reader (``training.instruction_reader``) trained on generated requests
+    and calibrated on the development sets, written with the input agent."""
     from vla_gr.training.instruction_reader import train_instruction_reader
 
     (checkpoint,) = _inputs(stage, inputs, 1)
     r = cfg.training.instruction_reader
     agent = folder / "agent"
     train_instruction_reader(
-        checkpoint, agent, count=r.count, steps=r.steps, batch_size=r.batch_size, lr=r.lr,
-        seed=cfg.seed, settings=r.settings, eval_count=r.eval_count,
-        token_dropout=r.token_dropout,
+        checkpoint, agent, dev_sets=r.dev_sets, count=r.count, steps=r.steps,
+        batch_size=r.batch_size, lr=r.lr, seed=cfg.seed, settings=r.settings,
     )  # fmt: skip
     return agent
 

@@ -5,8 +5,8 @@ asks each of its networks once: the goal likelihood (pixels of THE instance the 
 means), the room check, the object checks and the relation's anchor. The navigator receives
 the percept; nothing calls back into the policy.
 
-- :class:`LearnedPerception`: the agent's own (goal head, room-type classifier,
-  object-category segmenter, instruction reader and lexicon of a ``VLAGRPolicy``);
+- :class:`LearnedPerception`: the agent's own (instruction reader, goal head, room-type
+  classifier and object-category segmenter of a ``VLAGRPolicy``);
   :meth:`LearnedPerception.gated` multiplies its goal likelihood by a pixel gate.
 - :class:`TrueMaskPerception`: privileged, the true goal instance's mask (the planner's
   ceiling); :class:`TrueCategoryGate`: privileged, the pixels of the goal's category.
@@ -25,10 +25,14 @@ import torch
 
 from vla_gr.agent.observations import as_instructions, env_obs_to_frame
 from vla_gr.agent.perception.goal_head import GoalHead
-from vla_gr.agent.perception.instruction_reader import InstructionReader, Reading, read_instruction
-from vla_gr.agent.perception.lexicon import InstructionLexicon
-from vla_gr.agent.perception.object_category import ObjectCategorySegmenter, category_match
-from vla_gr.agent.perception.room_type import RoomTypeClassifier
+from vla_gr.agent.perception.object_category import (
+    ObjectCategorySegmenter,
+    category_match,
+    instructed_anchor,
+    instructed_category,
+)
+from vla_gr.agent.perception.room_type import RoomTypeClassifier, instructed_room
+from vla_gr.agent.reading import InstructionReader, Reading
 
 __all__ = ["LearnedPerception", "Percept", "Perception", "TrueCategoryGate", "TrueMaskPerception"]
 
@@ -55,11 +59,11 @@ class Percept:
 class Perception(Protocol):
     """What the dual system needs of a perception."""
 
-    #: the instruction as S2 read it this episode (None: read as said)
-    read_as: str | None
-
     def reset(self) -> None:
         """New episode: forget the reading of the last instruction."""
+
+    def read(self, instruction: str) -> Reading | None:
+        """How it reads ``instruction`` (None: it reads no instruction, e.g. the true mask)."""
 
     def perceive(self, obs: Mapping) -> Percept:
         """One S2 tick on one environment observation (``rgb`` (H, W, 3), ``depth``
@@ -72,24 +76,27 @@ PixelGate = Callable[[Mapping], np.ndarray]
 
 @dataclasses.dataclass
 class _EpisodeReading:
-    """The instruction of an episode as said, as S2 reads it, and what it names."""
+    """An episode's request as said, its reading, the words the goal head reads and the
+    checks' class indices (category and anchor 1-based, room 0-based; None: not named)."""
 
     said: str
-    read_as: str
     reading: Reading
-    has_colour: bool
+    phrase: str
+    category: int | None
+    anchor: int | None
+    room: int | None
 
 
 class LearnedPerception:
     """The agent's S2 perception, built from the networks of a ``VLAGRPolicy``.
 
     Args:
-        config: the agent's ``ModelConfig`` (``object_category``, ``room_type``,
-            ``instruction_lexicon`` and ``navigator.confirmation.pixel_threshold`` are read).
+        config: the agent's ``ModelConfig`` (``object_category``, ``room_type`` and
+            ``navigator.confirmation.pixel_threshold`` are read).
         goal_head: the language-grounded goal head.
-        room_type, object_category, instruction_reader, lexicon: optional checks and
-            readers (None: the check passes, the field is read from template words only,
-            the instruction is read as said).
+        room_type, object_category: optional checks (None: the check passes).
+        reader: the instruction reader (None: the template words are read exactly, and the
+            goal head reads the request as said).
         gate: optional privileged pixel gate multiplied into the goal likelihood.
     """
 
@@ -99,16 +106,14 @@ class LearnedPerception:
         goal_head: GoalHead,
         room_type: RoomTypeClassifier | None = None,
         object_category: ObjectCategorySegmenter | None = None,
-        instruction_reader: InstructionReader | None = None,
-        lexicon: InstructionLexicon | None = None,
+        reader: InstructionReader | None = None,
         gate: PixelGate | None = None,
     ) -> None:
         self.config = config
         self.goal_head = goal_head
         self.room_type = room_type
         self.object_category = object_category
-        self.instruction_reader = instruction_reader
-        self.lexicon = lexicon
+        self.reader = reader
         self.gate = gate
         self._episode: _EpisodeReading | None = None
 
@@ -123,34 +128,24 @@ class LearnedPerception:
         """Where the networks run: the goal head's parameters' device (they move together)."""
         return next(self.goal_head.parameters()).device
 
-    @property
-    def read_as(self) -> str | None:
-        """This episode's instruction in template words (None without a lexicon or a read)."""
-        if self.lexicon is None or self._episode is None:
-            return None
-        return self._episode.read_as
-
     def reset(self) -> None:
         self._episode = None
 
     def read(self, instruction: str) -> Reading:
-        """What the checks take ``instruction`` to name (template words, then the
-        instruction reader), read from the lexicon's rewording when there is a lexicon."""
+        """The reading of ``instruction`` (the reader's, or the template words')."""
         return self._read(instruction).reading
 
     def _read(self, said: str) -> _EpisodeReading:
         """The reading of ``said``, made at the first tick of an episode and kept."""
         if self._episode is None or self._episode.said != said:
-            read_as = said if self.lexicon is None else self.lexicon.canonical(said)
-            reading = read_instruction(
-                read_as,
-                self.config.object_category.categories,
-                self.config.room_type.room_types,
-                self.instruction_reader,
-            )
-            words = set(re.findall(r"[a-z]+", read_as.lower()))
-            colours = words & set(self.config.instruction_lexicon.colors)
-            self._episode = _EpisodeReading(said, read_as, reading, bool(colours))
+            if self.reader is not None:
+                reading = self.reader.read(said)
+                indices = self.reader.indices(reading)
+                phrase = reading.phrase
+            else:
+                reading, indices = template_reading(said, self.config)
+                phrase = said
+            self._episode = _EpisodeReading(said, reading, phrase, *indices)
         return self._episode
 
     @torch.no_grad()
@@ -162,8 +157,11 @@ class LearnedPerception:
                 f"{np.asarray(obs['rgb']).shape}"
             )
         episode = self._read(said[0])
-        reading = episode.reading
-        frame = env_obs_to_frame({**obs, "instruction": episode.read_as}, device=self.device)
+        if not episode.reading.understood:
+            raise ValueError(
+                f"S2 does not act on a request it did not understand: {episode.reading.reason}"
+            )
+        frame = env_obs_to_frame({**obs, "instruction": episode.phrase}, device=self.device)
         pixels, visible = self.goal_head.likelihood(
             frame["rgb"], frame["depth"], frame["instruction"]
         )  # (1, H, W), (1,)
@@ -179,13 +177,14 @@ class LearnedPerception:
         oc = self.config.object_category
         threshold = self.config.navigator.confirmation.pixel_threshold
         with_segmenter = self.object_category is not None
-        is_relation = reading.category is not None and reading.anchor is not None
-        if with_segmenter and oc.relation_candidates and is_relation and not episode.has_colour:
+        is_relation = episode.category is not None and episode.anchor is not None
+        has_colour = episode.reading.color is not None
+        if with_segmenter and oc.relation_candidates and is_relation and not has_colour:
             # a relation without a colour: every pixel of the category is a candidate
-            likelihood = np.maximum(likelihood, segment()[reading.category])  # (H, W)
-        excluded = reading.anchor is not None and reading.anchor != reading.category
+            likelihood = np.maximum(likelihood, segment()[episode.category])  # (H, W)
+        excluded = episode.anchor is not None and episode.anchor != episode.category
         if with_segmenter and oc.anchor_not_goal and excluded:  # anchor pixels are not goal's
-            anchor_pixels = segment()[reading.anchor] >= threshold  # (H, W)
+            anchor_pixels = segment()[episode.anchor] >= threshold  # (H, W)
             likelihood = np.where(anchor_pixels, 0.0, likelihood).astype(np.float32)  # (H, W)
         if self.gate is not None:
             likelihood = likelihood * self.gate(obs)  # (H, W)
@@ -197,20 +196,20 @@ class LearnedPerception:
             )
 
         room_match = 1.0
-        if self.room_type is not None and reading.room is not None:
+        if self.room_type is not None and episode.room is not None:
             probs = self.room_type.probabilities(frame["rgb"], frame["depth"])  # (1, R)
-            room_match = float(probs[0, reading.room])
+            room_match = float(probs[0, episode.room])
 
         match, anchor = None, None
         if with_segmenter:
-            index = reading.category
+            index = episode.category
             goal = likelihood >= threshold  # (H, W)
             if index is not None and int(goal.sum()) < oc.min_goal_pixels:
                 index = None
             if index is not None:
                 match = category_match(segment(), goal, index, oc.min_goal_pixels)
-            if reading.anchor is not None:
-                anchor = segment()[reading.anchor]  # (H, W)
+            if episode.anchor is not None:
+                anchor = segment()[episode.anchor]  # (H, W)
         return Percept(likelihood, float(visible[0]), room_match, match, anchor)
 
 
@@ -218,13 +217,15 @@ class TrueMaskPerception:
     """Privileged: the TRUE goal mask as S2's likelihood (needs the env's ``semantic``
     observation), no room or object checks; the planner's ceiling."""
 
-    read_as = None
-
     def __init__(self, env) -> None:
         self.env = env
 
     def reset(self) -> None:
         pass
+
+    def read(self, instruction: str) -> None:
+        """It reads no request: the true goal is the env's."""
+        return None
 
     def perceive(self, obs: Mapping) -> Percept:
         goal = int(self.env.unwrapped.goal.instance_id)
@@ -243,6 +244,29 @@ class TrueCategoryGate:
         u = self.env.unwrapped
         same = [o.instance_id for o in u.house.objects if o.category == u.goal.category]
         return np.isin(semantic_of(obs, "true_category"), same)  # (H, W) bool
+
+
+def template_reading(said: str, config) -> tuple[Reading, tuple]:
+    """The reading of an agent without a reader: the template words read exactly (goal
+    before a relation word, anchor after it, "in the <room>", a colour name); understood
+    when a category is named. Returns (reading, (category, anchor, room) indices)."""
+    categories = list(config.object_category.categories)
+    rooms = list(config.room_type.room_types)
+    category = instructed_category(said, categories)
+    anchor = instructed_anchor(said, categories)
+    room = instructed_room(said, rooms)
+    words = re.findall(r"[a-z]+", said.lower())
+    colour = next((c for c in config.instruction_reader.colors if c in words), None)
+    reading = Reading(
+        request=said,
+        category=None if category is None else categories[category - 1],
+        color=colour,
+        room=None if room is None else rooms[room],
+        anchor=None if anchor is None else categories[anchor - 1],
+        understood=category is not None,
+        reason=None if category is not None else "no category the templates name",
+    )
+    return reading, (category, anchor, room)
 
 
 def semantic_of(obs: Mapping, agent: str) -> np.ndarray:

@@ -2,7 +2,7 @@
 
 import pytest
 
-from vla_gr.core.text_fold import fold_to_ascii
+from vla_gr.text_fold import fold_to_ascii
 
 
 @pytest.mark.parametrize(

