@@ -75,9 +75,10 @@ class ReaderStageConfig:
     # hand-written development requests (JSONL, paths from the working directory)
     dev_sets: list[str] = field(
         default_factory=lambda: [
-            "benchmarks/language/dev_requests.jsonl",
-            "benchmarks/language/dev_not_understood.jsonl",
-        ]
+            f"benchmarks/language/{name}.jsonl"
+            for name in ("dev_requests", "dev_a", "dev_b", "dev_c", "dev_not_understood",
+                         "dev_not_understood_b")
+        ]  # fmt: skip
     )
     settings: list[str] = field(default_factory=list)  # instruction_reader.* model settings
 

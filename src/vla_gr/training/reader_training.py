@@ -178,12 +178,28 @@ def calibrate_reader(reader: InstructionReader, rows: list[dict]) -> dict:
     """Set ``temperature`` (lowest field ECE on the asks) then ``min_confidence`` (most asks
     read right and acted on; an ask acted on wrongly, or a refusal acted on, counts -2) on
     development ``rows``; returns the choice and the scores at it."""
+    from vla_gr.agent.reading.text import normalise_request, request_words
+
     c = reader.config
-    best_t = min(TEMPERATURES, key=lambda t: _scores_at(reader, rows, t, 0.0).get("ece", 0.0))
-    c.temperature = best_t
+    texts = [normalise_request(row["request"]) for row in rows]
+    words, logits = reader.tag_logits([request_words(t) for t in texts])  # encoded once
+
+    def scores(temperature: float, threshold: float) -> dict:
+        saved = c.min_confidence
+        c.min_confidence = threshold
+        try:
+            readings = [
+                reader.decode(t, w, torch.softmax(x / temperature, dim=-1))
+                for t, w, x in zip(texts, words, logits)
+            ]
+        finally:
+            c.min_confidence = saved
+        return reading_scores(readings, rows)
+
+    best_t = min(TEMPERATURES, key=lambda t: scores(t, 0.0).get("ece", 0.0))
 
     def merit(threshold: float) -> float:
-        s = _scores_at(reader, rows, best_t, threshold)
+        s = scores(best_t, threshold)
         acted_refusals = s.get("refusals", 0) * (1.0 - s.get("refused", 1.0))
         return (
             s.get("understood_and_right", 0.0) * s.get("requests", 0)
@@ -191,18 +207,11 @@ def calibrate_reader(reader: InstructionReader, rows: list[dict]) -> dict:
             - 2.0 * acted_refusals
         )
 
+    c.temperature = best_t
     c.min_confidence = max(THRESHOLDS, key=lambda th: (merit(th), -th))
     reader._cache.clear()
-    scores = _scores_at(reader, rows, c.temperature, c.min_confidence)
-    return {"temperature": c.temperature, "min_confidence": c.min_confidence, "dev": scores}
-
-
-def _scores_at(reader: InstructionReader, rows, temperature: float, threshold: float) -> dict:
-    c = reader.config
-    saved = (c.temperature, c.min_confidence)
-    c.temperature, c.min_confidence = temperature, threshold
-    try:
-        readings = reader.read_many([row["request"] for row in rows])
-    finally:
-        c.temperature, c.min_confidence = saved
-    return reading_scores(readings, rows)
+    return {
+        "temperature": c.temperature,
+        "min_confidence": c.min_confidence,
+        "dev": scores(c.temperature, c.min_confidence),
+    }

@@ -43,6 +43,15 @@ _DOING = (
     "i think it's {w}", "time to {w} around", "i want to {w} it", "it needs {w}",
     "i'm going to {w}", "we should {w} it", "something about {w}", "it's {w} again",
     "i left the {w} there", "the {w} is there", "i need to {w}", "while i {w}",
+    "it looks {w}", "it seems {w}", "it's so {w}", "it is {w} now", "looks {w} to me",
+    "the one i mean", "i think", "the one i want", "you know the one",
+)  # fmt: skip
+#: Context that names some other object (no goal): "let's watch a movie", "grab my keys".
+_OBJECT_CONTEXT = (
+    "let's watch a {o}", "i left my {o} there", "grab the {o} on the way", "my {o} is broken",
+    "i want to use the {o}", "bring the {o}", "i need my {o}", "i dropped a {o} near it",
+    "the {o} is somewhere there", "i was looking at the {o}", "mind the {o}",
+    "i want to sit at the {o}", "i'm by the {o}",
 )  # fmt: skip
 _POLITE_BEFORE = (
     "please", "pls", "hey robot,", "robot,", "ok,", "okay so", "hi,", "could you", "can you",
@@ -96,6 +105,14 @@ _NEAR = (
 _ROOM_PREP = ("in", "in the", "inside the", "in my", "in our", "within the", "over in the")
 _DETERMINERS = ("the", "the", "the", "a", "my", "that", "our", "this", "")
 _SIZE = ("big", "small", "little", "large", "old", "new", "comfy", "wooden", "tall", "round")
+#: Shapes that say the anchor before the goal, or refer back to it ("beside it").
+_ANCHOR_FIRST = (
+    "next to the {a} there's a {n}", "near the {a} is the {n}", "by the {a} , the {n}",
+    "somewhere near the {a} is a {n} ;", "the {a} has a {n} next to it",
+    "{a} - the {n} next to it", "the {n} with the {a} next to it", "the {n} , {a} next to it",
+    "the {n} that has a {a} beside it", "there's a {a} and a {n} beside it",
+    "the {n} with a {a} by it", "i'm at the {a} - the {n} beside it",
+)  # fmt: skip
 _NEGATIONS = (
     ("the {n} that isn't {c}", "c"), ("the {n} that is not {c}", "c"),
     ("not the {c} {n}", "c"), ("any {n} except the {c} one", "c"),
@@ -106,8 +123,13 @@ _NEGATIONS = (
     ("a {n} without the {a} next to it", "a"), ("no, not the {c} {n}", "c"),
     ("the {n}, but not in the {r}", "r"), ("any {n} apart from the {c} one", "c"),
     ("the {n} that is never {c}", "c"), ("the {n} that's not {c}", "c"),
+    ("anything but the {n}", "n"), ("anything except the {c} {n}", "c"),
+    ("any {n} but the {c} one", "c"), ("everything except the {n}", "n"),
+    ("not the {n} in the {r}", "r"), ("a {n} , just not the {c} one", "c"),
 )  # fmt: skip
-_NEGATION_WORDS = _words("isn't not except but other than outside without no apart from never")
+_NEGATION_WORDS = _words(
+    "anything everything just isn't not except but other than outside without no apart from never"
+)
 _SECOND = (
     "and then", "then", "and after that", ", then", ". then", "and then go to", "after that",
     ", and then", "and next", ", next", "and also", "and", ", after that", "and later",
@@ -167,6 +189,8 @@ class RequestGrammar:
         words by how near the class's own senses they are (:data:`_DEPTH_SHARE`)."""
         groups: dict[str, dict[int, list[str]]] = {}
         for phrase, name in table.items():
+            if name.how == "joined":  # "livingroom": read, not said by the grammar
+                continue
             text = " ".join(phrase)
             level = (
                 -1
@@ -259,15 +283,34 @@ class RequestGrammar:
             else:
                 seg += [(form, "O"), (colour, colour_tag)]
             rest = [room_seg, anchor_seg]
-        elif room is not None and shape < 0.26:  # room as a modifier or a possessive
-            possessive = rng.random() < 0.5
-            room_word = room + ("'s" if possessive else "")
-            seg = [(self._pick(rng, ("the", "the", "my", "")), "O"), (room_word, room_tag)]
-            seg += [(colour, colour_tag)] if colour else []
-            seg += size + [(noun, goal_tag)]
+        elif room is not None and shape < 0.30:  # room as a modifier, possessive or bare
+            form = rng.random()
+            lead = [(self._pick(rng, ("the", "the", "my", "")), "O")]
+            colour_seg = [(colour, colour_tag)] if colour else []
+            if form < 0.3:  # "the kitchen's red chair"
+                seg = lead + [(room + "'s", room_tag)] + colour_seg + size + [(noun, goal_tag)]
+            elif form < 0.6:  # "the red kitchen chair"
+                seg = lead + colour_seg + [(room, room_tag)] + size + [(noun, goal_tag)]
+            elif form < 0.8:  # "the kitchen red chair"
+                seg = lead + [(room, room_tag)] + colour_seg + size + [(noun, goal_tag)]
+            else:  # "red chair kitchen", "red chair - kitchen"
+                mark = self._pick(rng, ("", "", "-", ",", ":", "in"))
+                seg = lead + colour_seg + [(noun, goal_tag), (mark, "O"), (room, room_tag)]
             rest = [anchor_seg]
             room_seg = []
-        elif shape < 0.34 and (room is not None or anchor is not None):  # relative clause
+        elif anchor is not None and shape < 0.38:  # the anchor said first or after "it"
+            form = self._pick(rng, _ANCHOR_FIRST)
+            colour_seg = [(colour, colour_tag)] if colour else []
+            seg = []
+            for piece in form.split(" "):
+                if piece == "{a}":
+                    seg.append((anchor, anchor_tag))
+                elif piece == "{n}":
+                    seg += colour_seg + [(noun, goal_tag)]
+                else:
+                    seg.append((piece, "O"))
+            rest = [room_seg]
+        elif shape < 0.46 and (room is not None or anchor is not None):  # relative clause
             seg = [(det, "O")] + ([(colour, colour_tag)] if colour else []) + size
             seg += [(noun, goal_tag), (self._pick(rng, ("that is", "that's", "which is")), "O")]
             rest = [room_seg, anchor_seg]
@@ -349,6 +392,15 @@ class RequestGrammar:
         if rng.random() < 0.2:
             context = [(self._pick(rng, _CONTEXT), "O")]
             seg = context + seg if rng.random() < 0.7 else seg + [(".", "O")] + context
+        if rng.random() < 0.12:  # a sentence about some other object: no goal in it
+            other = _OBJECT_CONTEXT[int(rng.integers(len(_OBJECT_CONTEXT)))]
+            other = other.format(o=self._pick(rng, self.unknown_objects))
+            link = self._pick(rng, (".", "-", ",", ";", "so"))
+            seg = (
+                [(other, "O"), (link, "O")] + seg
+                if rng.random() < 0.7
+                else (seg + [(link, "O"), (other, "O")])
+            )
         if rng.random() < 0.15:  # what the user will do there, with any word
             doing = self._pick(rng, _DOING).format(w=self._pick(rng, self.fillers))
             link = self._pick(rng, (",", "-", ".", "so", "because", "and"))

@@ -170,15 +170,20 @@ class InstructionReader(nn.Module):
         return repaired, states, feats, mask
 
     @torch.no_grad()
-    def tag_probabilities(self, sentences: Sequence[Sequence[str]]) -> tuple[list, list]:
-        """(repaired word lists, per sentence tag probabilities (N, T) at the temperature)."""
+    def tag_logits(self, sentences: Sequence[Sequence[str]]) -> tuple[list, list]:
+        """(repaired word lists, per sentence tag logits (N, T) before the temperature)."""
         repaired, states, feats, mask = self.inputs(sentences)
         if states.shape[1] == 0:
             return repaired, [torch.zeros(0, len(TAGS)) for _ in sentences]
         device = self.tagger.out.weight.device
         logits = self.tagger(states.to(device), feats.to(device), mask.to(device))  # (B, N, T)
-        probs = F.softmax(logits.float().cpu() / self.config.temperature, dim=-1)  # (B, N, T)
-        return repaired, [probs[b, : len(words)] for b, words in enumerate(repaired)]
+        logits = logits.float().cpu()
+        return repaired, [logits[b, : len(words)] for b, words in enumerate(repaired)]
+
+    def tag_probabilities(self, sentences: Sequence[Sequence[str]]) -> tuple[list, list]:
+        """(repaired word lists, per sentence tag probabilities (N, T) at the temperature)."""
+        repaired, logits = self.tag_logits(sentences)
+        return repaired, [F.softmax(x / self.config.temperature, dim=-1) for x in logits]
 
     # -- readings -------------------------------------------------------------------------
     def read(self, request: str) -> Reading:
@@ -199,6 +204,11 @@ class InstructionReader(nn.Module):
         sentences = [request_words(t) for t in texts]
         repaired, probs = self.tag_probabilities(sentences)
         return [self._reading(t, w, p) for t, w, p in zip(texts, repaired, probs)]
+
+    def decode(self, text: str, words: list[str], probs: torch.Tensor) -> Reading:
+        """The reading of normalised ``text`` from its repaired ``words`` and their tag
+        probabilities (N, T)."""
+        return self._reading(text, words, probs)
 
     def _reading(self, text: str, words: list[str], probs: torch.Tensor) -> Reading:
         c = self.config

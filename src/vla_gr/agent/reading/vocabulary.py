@@ -108,7 +108,7 @@ FEATURES: tuple[str, ...] = (
 @dataclass(frozen=True)
 class Name:
     """The class a phrase names: ``kind`` "category", "room" or "colour"; ``how`` "exact"
-    or "typo" (one typing slip from a table word)."""
+    or "joined" (a two-word name typed as one word: "livingroom")."""
 
     kind: str
     name: str
@@ -214,6 +214,12 @@ class WordTable:
                         if depths is not None:
                             depths[phrase] = holder[synset][1]
                     break
+        for phrase, found in list(table.items()):  # "living room" typed as "livingroom"
+            joined = ("".join(phrase),)
+            if len(phrase) == 2 and all(w.isalpha() for w in phrase) and joined not in table:
+                table[joined] = Name(found.kind, found.name, "joined")
+                if depths is not None:
+                    depths[joined] = depths.get(phrase, 1)
         for name in senses:  # a class's own name always names it
             phrase = _phrase(name.replace("tv_monitor", "tv"))
             table[phrase] = Name(kind, name)
