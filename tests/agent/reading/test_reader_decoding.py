@@ -86,3 +86,9 @@ def test_the_checks_indices_follow_the_configured_classes():
     r = read("the purple bed by the cabinet in the bedroom", "OCGOOAOOR")
     assert reader.indices(r) == (3, 8, 2)  # bed, cabinet (1-based), bedroom (0-based)
     assert r.as_dict()["understood"] is True and r.as_dict()["anchor"] == "cabinet"
+
+
+def test_the_whole_dwelling_is_no_room_and_no_unknown_word():
+    r = read("find the red chair in my house", "OOCGOOR")
+    assert r.understood and r.room is None and r.unknown == ()
+    assert not read("find the red chair in the garage", "OOCGOOR").understood

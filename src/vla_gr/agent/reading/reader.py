@@ -222,13 +222,17 @@ class InstructionReader(nn.Module):
         for name, tag in _FIELD_TAG.items():
             kind = {"color": "colour", "room": "room"}.get(name, "category")
             found: dict[str, list[int]] = {}
+            column = probs[:, TAGS.index(tag)].clone() if len(words) else torch.zeros(0)
             for span in spans.get(tag, []):
-                named = table.name_in([words[k] for k in span], kind)
+                said = [words[k] for k in span]
+                named = table.name_in(said, kind)
+                if named is None and kind == "room" and table.is_dwelling(said):
+                    column[span] = 0.0  # "in my house": the whole dwelling, no room type
+                    continue
                 if named is None or (kind == "colour" and named.name not in c.colors):
                     unknown.append(" ".join(words[k] for k in span))
                 else:
                     found.setdefault(named.name, []).extend(span)
-            column = probs[:, TAGS.index(tag)] if len(words) else torch.zeros(0)
             if len(found) > 1:
                 conflicts.append(f"{name}: {' or '.join(display_name(n) for n in found)}")
             if found:

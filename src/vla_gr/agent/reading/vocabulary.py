@@ -61,6 +61,8 @@ ROOM_SENSES: dict[str, tuple[str, ...]] = {
     "office": ("office.n.01", "study.n.05", "workroom.n.01"),
     "hallway": ("hallway.n.01", "corridor.n.01", "anteroom.n.01"),
 }
+#: WordNet senses of a whole dwelling: a place in a request that narrows nothing down.
+DWELLING_SENSES: tuple[str, ...] = ("dwelling.n.01", "apartment.n.01", "home.n.01")
 #: Colour words: each colour's name, its "-ish" form and everyday shades of it.
 COLOUR_WORDS: dict[str, tuple[str, ...]] = {
     "red": ("red", "reddish", "crimson", "scarlet"),
@@ -186,6 +188,13 @@ class WordTable:
             (word,): Name("colour", colour) for colour, words in COLOUR_WORDS.items()
             for word in words
         }  # fmt: skip
+        # the whole dwelling ("my house", "at home"): where every room is, no room type
+        self.dwellings = {
+            _phrase(lemma)
+            for root in DWELLING_SENSES
+            for synset in _closure(wn.synset(root))
+            for lemma in synset.lemma_names()
+        }
         self.known = {w for lemma in wn.all_lemma_names() for w in _phrase(lemma)}
         self.known |= FUNCTION_WORDS | RELATION_WORDS | NEGATION_WORDS | SEQUENCE_WORDS
         # what a slip is repaired to: one-word names near their class's own senses (not the
@@ -249,6 +258,10 @@ class WordTable:
             if found is not None:
                 return found
         return None
+
+    def is_dwelling(self, words: Sequence[str]) -> bool:
+        """Whether ``words`` end in a word for the whole dwelling ("house", "flat", "home")."""
+        return bool(words) and any((w,) in self.dwellings for w in _singular(words[-1]))
 
     def name_in(self, words: Sequence[str], kind: str) -> Name | None:
         """The class a span of words names: the longest phrase of the table in it, the one
