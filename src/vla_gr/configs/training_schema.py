@@ -76,8 +76,14 @@ class ReaderStageConfig:
     dev_sets: list[str] = field(
         default_factory=lambda: [
             f"benchmarks/language/{name}.jsonl"
-            for name in ("dev_requests", "dev_a", "dev_b", "dev_c", "dev_not_understood",
-                         "dev_not_understood_b")
+            for name in (
+                "dev_requests",
+                "dev_a",
+                "dev_b",
+                "dev_c",
+                "dev_not_understood",
+                "dev_not_understood_b",
+            )
         ]  # fmt: skip
     )
     settings: list[str] = field(default_factory=list)  # instruction_reader.* model settings
