@@ -228,3 +228,13 @@ def test_readings_that_differ_from_the_description_are_listed():
     assert limited["episodes"] == 4 and len(limited["listed"]) == 2
     many = [_read_row(i, "find the sofa", _reading(category="bed")) for i in range(25)]
     assert len(reading_mismatches(many)["listed"]) == MISMATCHES_LISTED == 20
+
+
+def test_the_kind_of_a_hand_written_request_comes_from_its_description():
+    from vla_gr.evaluation.runner import instruction_kind
+
+    said = "yo robot, the couch by the telly pls"
+    assert instruction_kind(said) == "category"  # the generator's words are not in it
+    fields = {"category": "sofa", "color": None, "room": None, "near": "tv_monitor"}
+    assert instruction_kind(said, fields) == "relation"
+    assert instruction_kind("find the red chair in the kitchen") == "room"

@@ -53,11 +53,13 @@ def episode_seed(seed: int, index: int) -> int:
     return int(np.random.SeedSequence([int(seed), int(index)]).generate_state(1)[0])
 
 
-def instruction_kind(instruction: str) -> str:
-    """'relation', 'room', 'colour' or 'category': the most specific attribute it names."""
+def instruction_kind(instruction: str, description: dict | None = None) -> str:
+    """'relation', 'room', 'colour' or 'category': the most specific attribute it names (its
+    ``description``, the generator's fields, when the episode has one: a hand-written request
+    is not parsed)."""
     from vla_gr.envs.instructions import parse_instruction
 
-    parsed = parse_instruction(instruction)
+    parsed = description if description is not None else parse_instruction(instruction)
     if parsed["near"]:
         return "relation"
     if parsed["room"]:
@@ -217,7 +219,7 @@ def run_episode(
         "reading": agent.reading(),
         "num_rooms": len(u.house.rooms),
         "goal_category": spec.goal_category,
-        "instruction_kind": instruction_kind(spec.instruction),
+        "instruction_kind": instruction_kind(spec.instruction, spec.description),
         "distractor_distances": distractor,
         "stopped_near": near,
         "wrong_stop": wrong_stop_kind(goal, near) if near else None,
