@@ -152,7 +152,9 @@ class InstructionReader(nn.Module):
         self._cache: OrderedDict[str, Reading] = OrderedDict()
 
     # -- tensors --------------------------------------------------------------------------
-    def inputs(self, sentences: Sequence[Sequence[str]]) -> tuple[list, torch.Tensor, ...]:
+    def inputs(
+        self, sentences: Sequence[Sequence[str]]
+    ) -> tuple[list, torch.Tensor, torch.Tensor, torch.Tensor]:
         """(repaired word lists, token states (B, N, E), features (B, N, F), mask (B, N))."""
         table = word_table()
         repaired, features = [], []
