@@ -5,45 +5,26 @@ from __future__ import annotations
 
 import subprocess
 import sys
-from dataclasses import dataclass, field
 
 import pytest
 
 import vla_gr.policy
+from vla_gr.agent.reading import Reading
 from vla_gr.checkpoint import CheckpointError
 from vla_gr.cli import main
 from vla_gr.errors import UserError
 from vla_gr.read_cli import DEFAULT_CHECKPOINT, format_reading
 
-
-@dataclass
-class FakeReading:
-    """The part of a ``Reading`` the command uses: ``as_dict()``, ``understood``, ``reason``."""
-
-    category: str | None = None
-    color: str | None = None
-    room: str | None = None
-    anchor: str | None = None
-    confidence: dict = field(default_factory=dict)
-    unknown: tuple[str, ...] = ()
-    understood: bool = False
-    reason: str | None = None
-
-    def as_dict(self) -> dict:
-        fields = {k: getattr(self, k) for k in ("category", "color", "room", "anchor")}
-        return {**fields, "relation": "near" if self.anchor else None,
-                "confidence": dict(self.confidence), "unknown": list(self.unknown),
-                "understood": self.understood, "reason": self.reason}  # fmt: skip
-
-
-RED_CHAIR = FakeReading(
+RED_CHAIR = Reading(
+    request="take me to the red chair by the tv",
     category="chair",
     color="red",
     anchor="tv_monitor",
     confidence={"category": 0.981, "color": 0.99, "room": 0.97, "anchor": 0.95},
     understood=True,
 )
-PIANO = FakeReading(
+PIANO = Reading(
+    request="find the piano",
     confidence={"category": 0.2},
     unknown=("piano",),
     reason="no goal I can find in 'piano'; I can find a chair, sofa, bed, toilet, tv or plant",
@@ -56,7 +37,7 @@ class FakeReader:
     def __init__(self) -> None:
         self.requests: list[str] = []
 
-    def read(self, request: str) -> FakeReading:
+    def read(self, request: str) -> Reading:
         self.requests.append(request)
         if len(request) > 50:
             raise UserError("request of 51 characters is longer than the 50 read")
@@ -121,7 +102,7 @@ def test_a_request_not_understood_prints_why_and_exits_3(loads, capsys):
 
 
 def test_format_reading_marks_a_blank_request_and_lists_unknown_words():
-    reading = FakeReading(unknown=("qwerty", "zxcv"), reason="no goal named")
+    reading = Reading("qwerty zxcv", unknown=("qwerty", "zxcv"), reason="no goal named")
     lines = format_reading("\t  ", reading)
     assert lines[0].split() == ["request", "(blank)"]
     assert lines[6].split(None, 1) == ["unknown", "qwerty, zxcv"]
