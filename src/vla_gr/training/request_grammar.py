@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from vla_gr.agent.reading.reader import display_name
 from vla_gr.agent.reading.tagger import TAGS
 from vla_gr.agent.reading.text import normalise_request, request_words
 from vla_gr.agent.reading.vocabulary import COLOUR_WORDS, WordTable, _words
@@ -192,11 +193,7 @@ class RequestGrammar:
             if name.how == "joined":  # "livingroom": read, not said by the grammar
                 continue
             text = " ".join(phrase)
-            level = (
-                -1
-                if text == name.name.replace("_", " ").replace("tv monitor", "tv")
-                else (min(words._depth.get(phrase, 1), 3))
-            )
+            level = -1 if text == display_name(name.name) else (min(words._depth.get(phrase, 1), 3))
             groups.setdefault(name.name, {}).setdefault(level, []).append(text)
         out: dict[str, list[tuple[str, float]]] = {}
         for name, by_level in groups.items():

@@ -43,7 +43,18 @@ _CACHE_SIZE = 256
 
 def display_name(name: str) -> str:
     """How a class is said: 'tv_monitor' -> 'tv', 'living_room' -> 'living room'."""
-    return {"tv_monitor": "tv"}.get(name, name.replace("_", " "))
+    from vla_gr.agent.perception.object_category import spoken_name  # imports this package
+
+    return spoken_name(name)
+
+
+def _check_classes(name: str) -> list[str]:
+    """The checks' class list ``name`` ("categories" or "room_types"), imported when first
+    asked for (the perception package imports this one)."""
+    from vla_gr.agent.perception.object_category import CATEGORIES
+    from vla_gr.agent.perception.room_type import ROOM_TYPES
+
+    return list(CATEGORIES if name == "categories" else ROOM_TYPES)
 
 
 @dataclass
@@ -58,17 +69,8 @@ class ReaderConfig:
     temperature: float = 1.0  # divides the tagger's logits (calibrated on a development set)
     min_confidence: float = 0.5  # every field at least this sure, or not understood
     goal_categories: list[str] = field(default_factory=lambda: list(_GOAL_CATEGORIES))
-    categories: list[str] = field(default_factory=lambda: [*_GOAL_CATEGORIES, "table", "cabinet"])
-    room_types: list[str] = field(
-        default_factory=lambda: [
-            "kitchen",
-            "living_room",
-            "bedroom",
-            "bathroom",
-            "office",
-            "hallway",
-        ]  # fmt: skip
-    )
+    categories: list[str] = field(default_factory=lambda: _check_classes("categories"))
+    room_types: list[str] = field(default_factory=lambda: _check_classes("room_types"))
     colors: list[str] = field(default_factory=lambda: list(COLOUR_WORDS))
 
     def __post_init__(self) -> None:

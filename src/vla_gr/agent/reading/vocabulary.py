@@ -229,8 +229,10 @@ class WordTable:
                 table[joined] = Name(found.kind, found.name, "joined")
                 if depths is not None:
                     depths[joined] = depths.get(phrase, 1)
+        from vla_gr.agent.perception.object_category import spoken_name  # imports this package
+
         for name in senses:  # a class's own name always names it
-            phrase = _phrase(name.replace("tv_monitor", "tv"))
+            phrase = _phrase(spoken_name(name))
             table[phrase] = Name(kind, name)
             if depths is not None:
                 depths[phrase] = 0
