@@ -301,8 +301,8 @@ def test_a_run_on_a_checkpoint_rewritten_in_place_is_not_resumed(tmp_path, check
         (["agent=checkpoint"], "agent=checkpoint needs checkpoint="),
         (["agent=checkpoint", "checkpoint=/no/such/run"], "/no/such/run does not exist"),
         (["agent=checkpoint", "CKPT", "env.image_size=64"], "model.image_size=32"),
-        (["episodes=BAD"], "bad.jsonl:2: bad episode record"),
-        (["episodes=GOOD", "num_episodes=5"], "exceeds the 1 episodes"),
+        (["agent=expert", "episodes=BAD"], "bad.jsonl:2: bad episode record"),
+        (["agent=expert", "episodes=GOOD", "num_episodes=5"], "exceeds the 1 episodes"),
     ],
 )
 def test_bad_input_is_one_line_before_any_episode(tmp_path, capsys, checkpoint, overrides, message):

@@ -1,7 +1,9 @@
 """``vla-gr``: one entry point, one subcommand per app.
 
 Every app subcommand takes ``--config-name NAME``, Hydra ``key=value`` overrides and
-``--verbose``, and is also runnable as ``python -m vla_gr.<module>``. ``vla-gr store
+``--verbose``, and is also runnable as ``python -m vla_gr.<module>``; its ``--help`` lists the
+keys it reads with their defaults and meanings, and ``--cfg job`` prints the resolved config
+it would run with (an app module's ``compose_from_cli``, else ``load_config``). ``vla-gr store
 verify PATH`` checks an episode store, ``vla-gr store copy SRC DST`` rewrites one;
 ``vla-gr export SRC DST [key=value ...]`` writes a checkpoint for shipping;
 ``vla-gr read TEXT [checkpoint=PATH]`` prints how an agent reads a request (exit 0 when
@@ -23,6 +25,7 @@ from vla_gr.configs.command import (
     add_verbose_argument,
     configure_logging,
     run_command,
+    run_hydra_command,
 )
 from vla_gr.read_cli import add_read_arguments
 
@@ -48,6 +51,11 @@ def _resolve(target: str) -> Callable[[str, Sequence[str]], object]:
     return getattr(importlib.import_module(module_name), func_name)
 
 
+def _compose_of(target: str):
+    """The app's ``compose_from_cli`` (how it turns its arguments into a config), if any."""
+    return getattr(importlib.import_module(target.split(":")[0]), "compose_from_cli", None)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="vla-gr",
@@ -56,8 +64,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"vla-gr {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name, (_, help_text) in COMMANDS.items():
-        p = sub.add_parser(name, help=help_text, description=help_text)
-        add_hydra_arguments(p)
+        p = sub.add_parser(
+            name,
+            help=help_text,
+            description=help_text,
+            add_help=False,
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
+        add_hydra_arguments(p, name)
     store = sub.add_parser("store", help="inspect episode stores", description="episode stores")
     actions = store.add_subparsers(dest="action", metavar="ACTION", required=True)
     verify = actions.add_parser(
@@ -177,8 +191,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command in TOOLS:
         func = _resolve(TOOLS[args.command][0])
         return run_command(prog, func, args.text, args.settings, verbose=args.verbose)
-    func = _resolve(COMMANDS[args.command][0])
-    return run_command(prog, func, args.config_name, args.overrides, verbose=args.verbose)
+    target = COMMANDS[args.command][0]
+    compose = _compose_of(target) if args.cfg else None
+    return run_hydra_command(prog, args, _resolve(target), compose)
 
 
 if __name__ == "__main__":

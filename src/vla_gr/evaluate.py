@@ -2,14 +2,20 @@
 
 ``vla-gr eval [--config-name NAME] agent=<name> [checkpoint=<run>/checkpoints/best]
 split=val num_episodes=N | episodes=<file.jsonl> workers=W seed=S [output_dir=DIR]``
-(the bare keys are short for ``eval.<key>``). Writes to ``output_dir`` (default
+(the bare keys are short for ``eval.<key>``). Given no ``agent``, ``agents`` or ``checkpoint``
+(on the command line or in the recipe) it runs the shipped agent
+(``agent=checkpoint checkpoint=checkpoints/vla_gr_cpu``) and its first line says so; the
+geodesic expert, which reads the world's privileged state, runs only when named
+(``agent=expert``).
+Writes to ``output_dir`` (default
 ``outputs/eval/<agent>-<split>-<timestamp>``): ``episodes.jsonl`` (one row per episode,
 flushed as each finishes), ``metrics.json``, ``report.md`` with bar charts, top-down PNGs
 and GIFs. Run again with the same ``output_dir`` after a kill and it resumes: finished
 rows are read back, the rest run, and ``metrics.json`` equals an uninterrupted run's.
 ``--config-name compare agents=[a,b]`` runs several agents on the same episodes and
 writes ``compare.md`` / ``compare.json``. After the table it prints, for an agent that reads
-requests, how many it did not fully understand.
+requests, how many it did not fully understand. ``--cfg job`` prints the config it would run
+with (:func:`compose_from_cli`).
 
 ``rollout_policy`` / ``summarize`` (from :mod:`vla_gr.evaluation.runner`, re-exported) are
 the library calls training's closed-loop validation uses: the same episode loop.
@@ -21,6 +27,9 @@ import logging
 import sys
 from collections.abc import Sequence
 
+from vla_gr.configs.keys import EVAL_ALIASES
+from vla_gr.configs.schema import SHIPPED_CHECKPOINT
+from vla_gr.errors import UserError
 from vla_gr.evaluation.harness import (
     DEFAULT_SPLIT_EPISODES,
     EvalInputError,
@@ -34,29 +43,18 @@ log = logging.getLogger(__name__)
 
 __all__ = [
     "DEFAULT_SPLIT_EPISODES",
+    "EVAL_ALIASES",
     "EvalInputError",
     "compare",
+    "compose_from_cli",
     "evaluate",
     "expand_aliases",
     "plan_episodes",
     "rollout_policy",
     "run_from_cli",
+    "shipped_agent_default",
     "summarize",
 ]
-
-#: Bare ``key=value`` overrides that mean ``eval.key=value``.
-EVAL_ALIASES = (
-    "agent",
-    "agents",
-    "checkpoint",
-    "split",
-    "episodes",
-    "num_episodes",
-    "first_episode",
-    "workers",
-    "output_dir",
-    "device",
-)
 
 
 def expand_aliases(overrides: Sequence[str]) -> list[str]:
@@ -68,13 +66,56 @@ def expand_aliases(overrides: Sequence[str]) -> list[str]:
     return out
 
 
+def shipped_agent_default(eval_cfg) -> dict[str, str]:
+    """The ``eval.*`` values that name the agent when ``eval_cfg`` names none (no ``agent``,
+    ``agents`` or ``checkpoint``): the shipped checkpoint; {} when it names one."""
+    if eval_cfg.agent or eval_cfg.agents or eval_cfg.checkpoint:
+        return {}
+    return {"agent": "checkpoint", "checkpoint": SHIPPED_CHECKPOINT}
+
+
+def _compose(config_name: str, overrides: Sequence[str]):
+    """(resolved DictConfig, VLAGRConfig, whether the shipped agent was filled in)."""
+    import dataclasses
+
+    from vla_gr.configs import load_config
+
+    resolved, cfg = load_config(config_name, expand_aliases(overrides))
+    default = shipped_agent_default(cfg.eval)
+    if default:
+        for key, value in default.items():
+            resolved.eval[key] = value
+        cfg = dataclasses.replace(cfg, eval=dataclasses.replace(cfg.eval, **default))
+    return resolved, cfg, bool(default)
+
+
+def compose_from_cli(config_name: str, overrides: Sequence[str]):
+    """The config ``vla-gr eval`` runs with: recipe ``config_name`` with ``overrides`` (bare
+    keys of :data:`EVAL_ALIASES` meaning ``eval.<key>``) and, when it names no agent, the
+    shipped one (:func:`shipped_agent_default`). Returns (resolved DictConfig, VLAGRConfig)."""
+    resolved, cfg, _ = _compose(config_name, overrides)
+    return resolved, cfg
+
+
 def run_from_cli(config_name: str, overrides: Sequence[str]) -> int:
     """``vla-gr eval [--config-name NAME] [key=value ...]``; returns the exit code."""
-    from vla_gr.configs import load_config
+    from pathlib import Path
+
     from vla_gr.envs.metrics import format_table
     from vla_gr.evaluation.report import table_row
 
-    _, cfg = load_config(config_name, expand_aliases(overrides))
+    _, cfg, shipped = _compose(config_name, overrides)
+    if shipped:
+        sys.stdout.write(
+            f"agent: the shipped checkpoint {SHIPPED_CHECKPOINT} (no agent= or checkpoint= "
+            "given; agent=expert runs the privileged expert)\n"
+        )
+        sys.stdout.flush()
+        if not Path(SHIPPED_CHECKPOINT).is_dir():
+            raise UserError(
+                f"the shipped checkpoint {SHIPPED_CHECKPOINT} is not in {Path.cwd()}: run from "
+                "the repository's root, or name the agent (checkpoint=PATH, agent=NAME)"
+            )
     if cfg.eval.agents:
         result = compare(cfg)
         lines = [result["table"]]
@@ -100,4 +141,4 @@ def understood_lines(metrics: dict) -> list[str]:
 if __name__ == "__main__":
     from vla_gr.configs.command import module_main
 
-    sys.exit(module_main("evaluate", run_from_cli))
+    sys.exit(module_main("evaluate", run_from_cli, compose=compose_from_cli))

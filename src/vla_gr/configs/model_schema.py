@@ -56,16 +56,16 @@ FOLLOWS = {
 class PeftConfig:
     """Parameter-efficient fine-tuning (``model.peft.*``), applied after building the model."""
 
-    enabled: bool = False
-    method: str = "lora"
-    lora_rank: int = 8
-    lora_alpha: float = 16.0
-    lora_dropout: float = 0.0
+    enabled: bool = False  # wrap target_modules with adapters (merged away for inference)
+    method: str = "lora"  # lora | oft | adapter (bottleneck)
+    lora_rank: int = 8  # LoRA rank r
+    lora_alpha: float = 16.0  # LoRA scale: the update is multiplied by alpha / r
+    lora_dropout: float = 0.0  # dropout on the LoRA branch's input
     oft_rank: int = 4  # number of OFT blocks (peft r); in_features must be divisible by it
-    adapter_bottleneck: int = 32
+    adapter_bottleneck: int = 32  # width of the bottleneck adapter
     target_modules: list[str] = field(
         default_factory=lambda: ["q_proj", "k_proj", "v_proj", "out_proj"]
-    )
+    )  # names of the Linear layers adapted
 
     def __post_init__(self) -> None:
         check_choice("model.peft.method", self.method, PEFT_METHODS)
@@ -93,11 +93,11 @@ class ModelConfig:
     """
 
     # Observation / action layout (LeRobot names), shared with the training windows.
-    n_obs_steps: int = 2
-    horizon: int = 16
-    n_action_steps: int = 8
+    n_obs_steps: int = 2  # observation frames per decision (the latest and history)
+    horizon: int = 16  # actions per predicted chunk
+    n_action_steps: int = 8  # actions of a chunk executed before the next prediction
     action_dim: int = 3  # the world's action: (linear, angular, stop)
-    image_size: int = 64
+    image_size: int = 64  # the agent's input size (follows env.image_size)
     agent: str = "end_to_end"  # end_to_end | dual_system (S2 goal head + GR field, S1)
     encoders: EncodersConfig = field(default_factory=EncodersConfig)
     head: HeadConfig = field(default_factory=HeadConfig)

@@ -23,18 +23,21 @@ from vla_gr.geometry.robot_spec import MAX_DEPTH
 from vla_gr.validation import check_choice, check_positive
 
 SPLITS = ("train", "val", "test")
+#: The agent shipped in the repository (paths are from the working directory): what ``vla-gr
+#: demo`` and ``vla-gr eval`` run when no agent is named.
+SHIPPED_CHECKPOINT = "checkpoints/vla_gr_cpu"
 
 
 @dataclass
 class EnvConfig:
     """The ObjectNav world (see ``vla_gr.envs``)."""
 
-    split: str = "val"
-    image_size: int = 64
-    control_hz: float = 10.0
-    max_episode_steps: int = 1000
-    success_distance: float = 1.0
-    semantic: bool = False
+    split: str = "val"  # the episodes' split: train | val | test (disjoint houses)
+    image_size: int = 64  # side of the square RGB-D observation, in pixels
+    control_hz: float = 10.0  # control steps per simulated second
+    max_episode_steps: int = 1000  # steps before an episode is truncated (a timeout)
+    success_distance: float = 1.0  # success: STOP within this many metres of the goal
+    semantic: bool = False  # observations also carry the instance-id image ("semantic")
     episodes: str | None = None  # optional JSONL file of episode specs
     max_depth: float = MAX_DEPTH  # depth readings are clipped to [0, max_depth] metres
     num_rooms: int | None = None  # house size knob (None: the generator draws 2-5)
@@ -76,13 +79,13 @@ class ExpertConfig:
 class CollectConfig:
     """``vla-gr collect``: expert episodes into a zarr store."""
 
-    split: str = "train"
-    num_episodes: int = 32
-    first_episode: int = 0
-    workers: int = 2
-    output: str = "data/expert_${collect.split}.zarr"
+    split: str = "train"  # the split whose episodes the expert drives
+    num_episodes: int = 32  # episodes recorded
+    first_episode: int = 0  # index of the first one in the split
+    workers: int = 2  # processes, one env each
+    output: str = "data/expert_${collect.split}.zarr"  # the zarr store written
     mode: str = "refuse"  # what to do when the store exists: refuse | append | overwrite
-    progress: bool = True
+    progress: bool = True  # a progress bar on stderr
 
     def __post_init__(self) -> None:
         check_choice("collect.split", self.split, SPLITS)
@@ -97,12 +100,12 @@ class DemoConfig:
     """``vla-gr demo``: the shipped agent evaluated on a few episodes (see ``vla_gr.demo``)."""
 
     agent: str = "checkpoint"  # an eval agent (checkpoint, true_mask, true_category, expert, ...)
-    checkpoint: str = "checkpoints/vla_gr_cpu"  # the agent shipped in the repository
-    split: str = "val"
-    num_episodes: int = 20
-    first_episode: int = 0
-    workers: int = 2
-    output_dir: str = "outputs/demo"
+    checkpoint: str = SHIPPED_CHECKPOINT  # the agent shipped in the repository
+    split: str = "val"  # the split of the episodes run
+    num_episodes: int = 20  # episodes run
+    first_episode: int = 0  # index of the first one in the split
+    workers: int = 2  # processes, one env and one agent each
+    output_dir: str = "outputs/demo"  # the evaluation's run folder (emptied first)
     train: bool = False  # collect (if missing) + train this recipe's agent, then evaluate it
 
     def __post_init__(self) -> None:
@@ -135,28 +138,31 @@ class VariantConfig:
 class EvalConfig:
     """``vla-gr eval``: closed-loop evaluation of an agent (or several: ``agents``)."""
 
-    agent: str | None = None  # an AGENTS name or a variant (None: checkpoint if given)
+    # the agent run: a registered agent (checkpoint, expert, random, ...) or a variant; None:
+    # checkpoint when a checkpoint is given, else (`vla-gr eval`) the shipped agent. Called as
+    # a library, ``evaluate`` given neither runs the expert.
+    agent: str | None = None
     agents: list[str] = field(default_factory=list)  # non-empty: compare these agents
     checkpoint: str | None = None  # for agent=checkpoint: <run>/checkpoints/best
     # named agents: a registered agent + checkpoint + overrides (agent=<name>, agents=[...])
     variants: dict[str, VariantConfig] = field(default_factory=dict)
     # inference-only settings changed on the loaded checkpoint, e.g. [navigator.tight.steps=90]
     model_overrides: list[str] = field(default_factory=list)
-    split: str = "val"
+    split: str = "val"  # the split whose episodes run (without episodes=)
     episodes: str | None = None  # JSONL file of episode specs (instead of the split)
     num_episodes: int | None = None  # None: 10 of a split, or the whole episodes file
-    first_episode: int = 0
-    workers: int = 1
+    first_episode: int = 0  # index of the first episode run
+    workers: int = 1  # processes, one env and one agent each (same rows for any number)
     output_dir: str | None = None  # None: outputs/eval/<agent>-<split>-<timestamp>
-    device: str = "cpu"
-    progress: bool = True
+    device: str = "cpu"  # torch device of the agent
+    progress: bool = True  # a progress bar on stderr
     goal_seen_pixels: int = 20  # goal instance "seen" when it covers >= this many pixels
     stuck_steps: int = 50  # "stuck": moved < stuck_radius over the last stuck_steps steps
     stuck_radius: float = 0.3  # metres
     gif_successes: int = 2  # GIFs of the first few successes ...
     gif_per_cause: int = 1  # ... and of the first episodes of each failure cause
-    gif_image_size: int = 96
-    gif_stride: int = 2
+    gif_image_size: int = 96  # pixels of each GIF panel
+    gif_stride: int = 2  # every n-th step is a GIF frame
 
     def __post_init__(self) -> None:
         check_choice("eval.split", self.split, SPLITS)
@@ -179,7 +185,7 @@ class EvalConfig:
 class VLAGRConfig:
     """Root of every recipe."""
 
-    seed: int = 0
+    seed: int = 0  # seeds the noise draws of episodes, data order and initial weights
     env: EnvConfig = field(default_factory=EnvConfig)
     expert: ExpertConfig = field(default_factory=ExpertConfig)
     collect: CollectConfig = field(default_factory=CollectConfig)

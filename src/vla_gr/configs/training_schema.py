@@ -24,11 +24,11 @@ class S1StageConfig:
     ``s1_data`` stage (the agent's rollouts relabelled by the local teacher, in ``workers``
     processes) and ``s1`` stage (:mod:`vla_gr.training.stages`)."""
 
-    workers: int = 2
+    workers: int = 2  # processes that relabel the rollouts (s1_data stage)
     init_s1: bool = False  # start from the input agent's S1 weights instead of fresh ones
-    steps: int = 3000
-    batch_size: int = 256
-    lr: float = 1e-3
+    steps: int = 3000  # optimiser steps
+    batch_size: int = 256  # samples per step
+    lr: float = 1e-3  # learning rate
     settings: list[str] = field(default_factory=list)  # s1.* model settings, e.g. the head
 
     def __post_init__(self) -> None:
@@ -44,9 +44,9 @@ class FramePartStageConfig:
     first: int = 0  # first stored episode read
     episodes: int | None = None  # stored episodes read (None: all from ``first``)
     stride: int = 8  # every stride-th frame
-    steps: int = 2000
-    batch_size: int = 256
-    lr: float = 2e-3
+    steps: int = 2000  # optimiser steps
+    batch_size: int = 256  # frames per step
+    lr: float = 2e-3  # learning rate
     reject_threshold: float = 0.2  # the navigator's rejection threshold written with the part
     background_weight: float = 0.5  # the segmenter's background pixels' loss weight
     settings: list[str] = field(default_factory=list)  # <part>.* model settings
@@ -69,9 +69,9 @@ class ReaderStageConfig:
     calibrated on hand-written development sets (``training.instruction_reader``)."""
 
     count: int = 12000  # generated training requests
-    steps: int = 2000
-    batch_size: int = 128
-    lr: float = 3e-3
+    steps: int = 2000  # optimiser steps
+    batch_size: int = 128  # requests per step
+    lr: float = 3e-3  # learning rate
     # hand-written development requests (JSONL, paths from the working directory)
     dev_sets: list[str] = field(
         default_factory=lambda: [
@@ -100,13 +100,13 @@ class TrainingConfig:
     """Optimisation, data, precision, distribution and checkpointing of a training run."""
 
     # Data.
-    dataset: str = "data/expert_train.zarr"
+    dataset: str = "data/expert_train.zarr"  # the episode store (zarr) trained on
     if_missing: str = "error"  # dataset absent: error | collect (run the expert) | synthetic
     on_corrupt: str = "error"  # damaged store: error (refuse) | skip (train on intact episodes)
     synthetic_episodes: int = 8  # for if_missing=synthetic
-    synthetic_length: int = 24
+    synthetic_length: int = 24  # steps of each synthetic episode
     val_ratio: float = 0.1  # held-out episodes for the validation loss
-    num_workers: int = 0
+    num_workers: int = 0  # DataLoader worker processes (0: in the training process)
     # hold depth in float16 in memory (half its bytes; rounding <= 2**-11 relative, 2.4 mm
     # at 5 m); masks are always held bit-packed. For stores that would not fit otherwise.
     depth_float16: bool = False
@@ -114,17 +114,17 @@ class TrainingConfig:
     steps: int = 2000  # optimiser steps
     batch_size: int = 32  # micro-batch per process
     grad_accum: int = 1  # micro-batches per optimiser step
-    lr: float = 3e-4
+    lr: float = 3e-4  # peak learning rate (AdamW, cosine schedule)
     min_lr_ratio: float = 0.1  # cosine floor as a fraction of lr
-    warmup_steps: int = 100
-    weight_decay: float = 1e-4
+    warmup_steps: int = 100  # linear warm-up to lr
+    weight_decay: float = 1e-4  # AdamW weight decay
     betas: list[float] | None = None  # AdamW betas; None = (0.9, 0.999)
     grad_clip: float = 1.0  # max global grad norm; 0 disables
     ema_decay: float = 0.995  # 0 disables EMA
     ema_warmup: bool = True  # decay ramps up as min(decay, (1 + s) / (10 + s))
     optimizer_offload: bool = False  # keep AdamW state (and fp32 master weights) on the CPU
     # Precision / speed.
-    device: str = "auto"
+    device: str = "auto"  # auto (cuda if available) | cpu | cuda
     amp: str = "none"  # none | fp16 (autocast + GradScaler) | bf16 (autocast)
     compile: bool = False  # torch.compile the policy
     ddp_backend: str = "auto"  # auto: nccl on CUDA, gloo on CPU
@@ -149,9 +149,9 @@ class TrainingConfig:
     checkpoint_every: int = 200  # optimiser steps between `latest` checkpoints (0 = end only)
     keep_checkpoints: int = 2  # step folders kept besides the one `best` points to
     resume: str | None = None  # <run>/checkpoints/latest
-    output_dir: str = "outputs/train"
+    output_dir: str = "outputs/train"  # the run folder is output_dir/run_name
     run_name: str | None = None  # default: a timestamp
-    log_every: int = 10
+    log_every: int = 10  # optimiser steps between logged metrics
     s1: S1StageConfig = field(default_factory=S1StageConfig)
     # S2's parts trained on frames or generated instructions by recipe stages
     room_type: FramePartStageConfig = field(default_factory=FramePartStageConfig)
@@ -159,10 +159,9 @@ class TrainingConfig:
         default_factory=lambda: FramePartStageConfig(
             steps=3000, batch_size=64, reject_threshold=0.3
         )
-    )
-    instruction_reader: ReaderStageConfig = field(
-        default_factory=ReaderStageConfig
-    )  # dual system: the S1 stage
+    )  # the object-category segmenter's stage
+    # the instruction reader's stage
+    instruction_reader: ReaderStageConfig = field(default_factory=ReaderStageConfig)
 
     def __post_init__(self) -> None:
         check_choice("training.if_missing", self.if_missing, IF_MISSING)
@@ -215,9 +214,9 @@ class TrainingConfig:
 class WandbConfig:
     """Weights & Biases mirror of the metrics (off by default; needs ``pip install wandb``)."""
 
-    enabled: bool = False
-    project: str = "vla-gr"
-    entity: str | None = None
+    enabled: bool = False  # mirror the metrics to Weights & Biases
+    project: str = "vla-gr"  # the wandb project
+    entity: str | None = None  # the wandb team or user (None: your default)
     mode: str = "online"  # online | offline | disabled
 
     def __post_init__(self) -> None:
@@ -233,9 +232,9 @@ class WandbConfig:
 class LoggingConfig:
     """Where training metrics go: metrics.jsonl always, TensorBoard, progress bar, wandb."""
 
-    tensorboard: bool = True
-    progress: bool = True
-    level: str = "INFO"
+    tensorboard: bool = True  # TensorBoard event files in <run>/tensorboard
+    progress: bool = True  # a progress bar on stderr
+    level: str = "INFO"  # log level: DEBUG | INFO | WARNING | ERROR
     wandb: WandbConfig = field(default_factory=WandbConfig)
 
     def __post_init__(self) -> None:
