@@ -61,7 +61,9 @@ def load_set(path: str | Path) -> list[dict]:
             raise ValueError(f"{path}:{lineno}: fields must be exactly {list(FIELDS)}")
         if parse_instruction(spec.instruction) != row["fields"]:
             raise ValueError(f"{path}:{lineno}: fields differ from the generator's description")
-        if not isinstance(row.get("request"), str) or not row["request"].strip():
+        if not isinstance(row.get("request"), str):
+            raise ValueError(f"{path}:{lineno}: no request")
+        if not row["request"].strip() and "kind" not in row:  # "" is a request to refuse
             raise ValueError(f"{path}:{lineno}: empty request")
         rows.append(row)
     return rows

@@ -61,13 +61,13 @@ def _check(reader, strings: list[str]) -> None:
                 assert table.name_in(words, "category") is not None, text
 
 
-def test_two_thousand_random_strings_read_without_error(reader):
-    _check(reader, random_strings(2000, seed=0))
+def test_ten_thousand_random_strings_read_without_error(reader):
+    _check(reader, random_strings(10_000, seed=0))
 
 
 @pytest.mark.slow
-def test_ten_thousand_random_strings_read_without_error(reader):
-    _check(reader, random_strings(10_000, seed=1))
+def test_fifty_thousand_random_strings_read_without_error(reader):
+    _check(reader, random_strings(50_000, seed=1))
 
 
 def _resets(count: int, seed: int) -> None:

@@ -104,6 +104,13 @@ _NEAR = (
     "adjacent to", "near to", "just by", "at", "nearby", "against", "by the side of",
 )  # fmt: skip
 _ROOM_PREP = ("in", "in the", "inside the", "in my", "in our", "within the", "over in the")
+#: How a place that is no room of the house is said ("on the balcony", "out in the yard").
+_PLACE_PREP = _ROOM_PREP + ("on the", "out on the", "out in the", "down in the",
+                            "up in the", "on my")  # fmt: skip
+#: WordNet roots of the places no room table holds: other rooms, outbuildings, floors,
+#: porches, balconies, patios, gardens, yards.
+_OTHER_PLACES = ("room.n.01", "outbuilding.n.01", "floor.n.02", "area.n.05", "porch.n.01",
+                 "balcony.n.01", "garden.n.01", "yard.n.02")  # fmt: skip
 _DETERMINERS = ("the", "the", "the", "a", "my", "that", "our", "this", "")
 _SIZE = ("big", "small", "little", "large", "old", "new", "comfy", "wooden", "tall", "round")
 #: Shapes that say the anchor before the goal, or refer back to it ("beside it").
@@ -131,6 +138,9 @@ _NEGATIONS = (
 _NEGATION_WORDS = _words(
     "anything everything just isn't not except but other than outside without no apart from never"
 )
+#: Two goals joined by "and" alone: "the bed and the toilet", "the sofa as well as the tv".
+_AND = ("and", "and the", "and also", "and also the", "as well as", "plus", "and a", ", and",
+        "and my", "& the", "and then the")  # fmt: skip
 _SECOND = (
     "and then", "then", "and after that", ", then", ". then", "and then go to", "after that",
     ", and then", "and next", ", next", "and also", "and", ", after that", "and later",
@@ -178,11 +188,35 @@ class RequestGrammar:
             if table.name_in(w.split(), "colour") is None
         )  # fmt: skip
         self.unknown_rooms = sorted(
-            w for w in self._wordnet_words("room.n.01", named, table)
-            | self._wordnet_words("outbuilding.n.01", named, table)
+            w for root in _OTHER_PLACES for w in self._wordnet_words(root, named, table)
             if table.name_in(w.split(), "room") is None
+            and table.name_in(w.split(), "category") is None
         )  # fmt: skip
-        self.fillers = sorted(w for w in table.known if w.isalpha() and 3 <= len(w) <= 9)
+        self._other_places = frozenset(self.unknown_rooms)
+        # the everyday ones (a root's own words and those one level below: "balcony",
+        # "garage", "khaki"), said as often as all the rest
+        generic = {w for root in ("room.n.01", "area.n.05", "floor.n.02")
+                   for w in self._wordnet_words(root, named, table, max_depth=0)}  # fmt: skip
+        self.common_places = sorted(
+            w for root in _OTHER_PLACES
+            for w in self._wordnet_words(root, named, table, max_depth=1)
+            if w in self._other_places and w not in generic
+        )  # fmt: skip
+        self.common_colours = sorted(
+            w for root in ("chromatic_color.n.01", "achromatic_color.n.01")
+            for w in self._wordnet_words(root, named, table, colour_words, max_depth=2)
+            if w in self.unknown_colours
+        )  # fmt: skip
+        self.adjectives = sorted(  # adjectives and participles no table holds
+            w for w in self._adjectives() if table.name_in([w], "colour") is None
+            and table.name_in([w], "room") is None and table.name_in([w], "category") is None
+        )  # fmt: skip
+        self.fillers = sorted(
+            w for w in table.known
+            if w.isalpha() and 3 <= len(w) <= 9 and table.look_up([w], "colour") is None
+        )  # fmt: skip
+        # field words a typing slip may land on: those the reader repairs a slip of
+        self._field_words = frozenset().union(*table.slip_targets.values())
 
     @staticmethod
     def _words_by_class(table: dict, words: WordTable) -> dict[str, list[tuple[str, float]]]:
@@ -206,12 +240,18 @@ class RequestGrammar:
         return out
 
     @staticmethod
-    def _wordnet_words(root: str, named: set, table: WordTable, exclude=frozenset()) -> set[str]:
+    def _wordnet_words(
+        root: str, named: set, table: WordTable, exclude=frozenset(), max_depth: int = 99
+    ) -> set[str]:
+        """One- and two-word lower-case lemmas of ``root`` and its hyponyms down to
+        ``max_depth`` levels, but those in ``named`` or ``exclude``."""
         from vla_gr.agent.reading.vocabulary import _closure, _wordnet
 
         wn = _wordnet()
         out = set()
-        for synset in _closure(wn.synset(root)):
+        for synset, depth in _closure(wn.synset(root)).items():
+            if depth > max_depth:
+                continue
             for lemma in synset.lemma_names():
                 phrase = tuple(request_words(normalise_request(lemma.replace("_", " "))))
                 if phrase and phrase not in named and len(phrase) <= 2 and lemma.islower():
@@ -219,6 +259,17 @@ class RequestGrammar:
                     if text not in exclude and all(w.isalpha() for w in phrase):
                         out.add(text)
         return out
+
+    @staticmethod
+    def _adjectives() -> set[str]:
+        """WordNet's one-word adjectives (head and satellite), lower case."""
+        from vla_gr.agent.reading.vocabulary import _wordnet
+
+        wn = _wordnet()
+        return {
+            lemma for pos in ("a", "s") for lemma in wn.all_lemma_names(pos)
+            if lemma.isalpha() and lemma.islower() and 3 <= len(lemma) <= 10
+        }  # fmt: skip
 
     # -- pieces -------------------------------------------------------------------------
     @staticmethod
@@ -236,12 +287,14 @@ class RequestGrammar:
 
     def _room(self, rng, room: str | None) -> str:
         if room is None:
-            return self._pick(rng, self.unknown_rooms)
+            common = rng.random() < 0.5
+            return self._pick(rng, self.common_places if common else self.unknown_rooms)
         return self._weighted(rng, self.room_words[room])
 
     def _colour(self, rng, colour: str | None) -> str:
         if colour is None:
-            return self._pick(rng, self.unknown_colours)
+            common = rng.random() < 0.5
+            return self._pick(rng, self.common_colours if common else self.unknown_colours)
         words = COLOUR_WORDS[colour]
         return words[0] if rng.random() < 0.85 else self._pick(rng, words)
 
@@ -250,7 +303,9 @@ class RequestGrammar:
         """Segments [(text, tag)] describing the goal in one of many shapes."""
         det = self._pick(rng, _DETERMINERS)
         seg: list[tuple[str, str]] = []
-        size = [(self._pick(rng, _SIZE), "O")] if rng.random() < 0.08 else []
+        size = []  # a word saying what it is like: "big", "potted", "spotted"
+        if rng.random() < 0.14:
+            size = [(self._pick(rng, _SIZE if rng.random() < 0.5 else self.adjectives), "O")]
         colour_tag = "COLOUR" if goal_tag == "GOAL" else goal_tag
         room_tag = "ROOM" if goal_tag == "GOAL" else goal_tag
         anchor_tag = "ANCHOR" if goal_tag == "GOAL" else goal_tag
@@ -266,7 +321,8 @@ class RequestGrammar:
             anchor_seg = near + anchor_colour + [(anchor, anchor_tag)]
         room_seg = []
         if room is not None:
-            room_seg = [(self._pick(rng, _ROOM_PREP), "O"), (room, room_tag)]
+            prep = _PLACE_PREP if room in self._other_places else _ROOM_PREP
+            room_seg = [(self._pick(rng, prep), "O"), (room, room_tag)]
         shape = rng.random()
         if colour is not None and shape < 0.12:  # relative clause or appositive for colour
             form = self._pick(rng, ("that is", "that's", "which is", ", the", "- the", "(", ","))
@@ -280,7 +336,9 @@ class RequestGrammar:
             else:
                 seg += [(form, "O"), (colour, colour_tag)]
             rest = [room_seg, anchor_seg]
-        elif room is not None and shape < 0.30:  # room as a modifier, possessive or bare
+        elif room is not None and shape < 0.36 and room not in self._other_places:
+            # a room of the house as a modifier, possessive or bare (a place no table holds
+            # is said with a preposition: an unknown word before the noun is what it is like)
             form = rng.random()
             lead = [(self._pick(rng, ("the", "the", "my", "")), "O")]
             colour_seg = [(colour, colour_tag)] if colour else []
@@ -288,10 +346,10 @@ class RequestGrammar:
                 seg = lead + [(room + "'s", room_tag)] + colour_seg + size + [(noun, goal_tag)]
             elif form < 0.6:  # "the red kitchen chair"
                 seg = lead + colour_seg + [(room, room_tag)] + size + [(noun, goal_tag)]
-            elif form < 0.8:  # "the kitchen red chair"
+            elif form < 0.72:  # "the kitchen red chair"
                 seg = lead + [(room, room_tag)] + colour_seg + size + [(noun, goal_tag)]
             else:  # "red chair kitchen", "red chair - kitchen"
-                mark = self._pick(rng, ("", "", "-", ",", ":", "in"))
+                mark = self._pick(rng, ("", "", "", "-", ",", ":", "in", "in the", "/"))
                 seg = lead + colour_seg + [(noun, goal_tag), (mark, "O"), (room, room_tag)]
             rest = [anchor_seg]
             room_seg = []
@@ -455,7 +513,7 @@ class RequestGrammar:
             goal_tag="SECOND",
         )
         lead = [(self._pick(rng, ("first", "go to", "first go to", "find", "")), "O")]
-        link = [(self._pick(rng, _SECOND), "O")]
+        link = [(self._pick(rng, _AND if rng.random() < 0.4 else _SECOND), "O")]
         verb = [(self._pick(rng, ("", "go to", "find", "the")), "O")] if rng.random() < 0.5 else []
         return lead + first + link + verb + second
 
@@ -469,6 +527,9 @@ class RequestGrammar:
                 tags.append(tag)
         if words and rng.random() < 0.2:  # one typing slip in one word of 4 letters or more
             long = [k for k, w in enumerate(words) if len(w) >= 4 and w.isalpha()]
+            named = [k for k in long if words[k] in self._field_words]
+            if named and rng.random() < 0.5:  # in a field word: "bleu", "whit", "rom"
+                long = named
             if long:
                 k = long[int(rng.integers(len(long)))]
                 words[k] = _slip(words[k], rng)

@@ -92,3 +92,39 @@ def test_the_whole_dwelling_is_no_room_and_no_unknown_word():
     r = read("find the red chair in my house", "OOCGOOR")
     assert r.understood and r.room is None and r.unknown == ()
     assert not read("find the red chair in the garage", "OOCGOOR").understood
+
+
+def test_a_span_tagged_as_a_field_is_read_through_a_slip_onto_a_real_word():
+    r = read("go to the bleu chair in the lining room", "OOOCGOORR")
+    assert (r.color, r.category, r.room) == ("blue", "chair", "living_room") and r.understood
+
+
+def test_a_colour_word_left_without_a_role_makes_the_request_not_understood():
+    r = read("the chair red", "OGO")
+    assert not r.understood and r.reason == "'red': I could not tell what it describes"
+    assert "red" in r.unknown
+
+
+def test_a_colour_describing_the_anchor_is_no_unplaced_word():
+    r = read("the chair next to the red table", "OGOOOOA")
+    assert r.understood and r.anchor == "table" and r.color is None
+
+
+def test_a_noun_no_table_holds_is_not_read_through_its_head_or_a_slip():
+    r = read("find the coat rack in the hallway", "OOGGOOR")  # "rack" (slang bed), "cot"
+    assert not r.understood and r.category is None and "coat rack" in r.reason
+
+
+def test_a_colour_no_table_holds_said_before_the_goal_is_not_dropped():
+    r = read("go to the beige chair", "OOOOG")
+    assert not r.understood and "beige" in r.reason
+
+
+def test_a_colour_no_table_holds_read_as_part_of_the_noun_is_not_dropped():
+    r = read("go to the teal chair", "OOOGG")
+    assert not r.understood and "teal" in r.reason
+
+
+def test_a_hyphen_inside_a_word_joins_the_words_of_a_room():
+    r = read("the living-room chair that's black", "ORRGOC")
+    assert (r.room, r.category, r.color) == ("living_room", "chair", "black") and r.understood

@@ -37,3 +37,9 @@ def test_a_request_over_the_limit_is_refused_in_one_line_naming_it():
 def test_a_non_string_is_refused():
     with pytest.raises(RequestError, match="must be a str"):
         normalise_request(b"find the sofa")
+
+
+def test_a_hyphen_inside_a_word_is_a_space_and_a_dash_between_words_is_kept():
+    assert request_words(normalise_request("Living-room chair - go")) == [
+        "living", "room", "chair", "-", "go"
+    ]  # fmt: skip

@@ -83,3 +83,50 @@ def test_features_mark_category_room_colour_relation_and_negation_words(table):
     assert "colour" in on[1] and "goal_category" in on[2] and "typo_fixed" in on[2]
     assert "negation" in on[4] and "relation" in on[5] and "goal_category" in on[8]
     assert "room" in on[11] and "room" not in on[2]
+
+
+@pytest.mark.parametrize(
+    ("typed", "meant"),
+    [("rm", "room"), ("bdrm", "bedroom"), ("nxt", "next"), ("2", "to"), ("ot", "to"),
+     ("ni", "in"), ("yb", "by")],
+)  # fmt: skip
+def test_short_forms_and_swapped_two_letter_function_words_are_read_as_the_word(
+    table, typed, meant
+):
+    assert table.repair(typed) == meant
+
+
+@pytest.mark.parametrize("word", ["on", "no", "to", "tv", "ox"])
+def test_two_letter_words_that_are_no_swapped_function_word_are_left_alone(table, word):
+    assert table.repair(word) == word
+
+
+@pytest.mark.parametrize(
+    ("word", "kind", "meant"),
+    [("bleu", "colour", "blue"), ("whit", "colour", "white"), ("lining", "room", "living"),
+     ("bleu", "room", None), ("blue", "colour", None), ("red", "category", "bed")],
+)  # fmt: skip
+def test_a_real_word_one_slip_from_a_table_word_of_a_kind_is_found_for_that_kind_only(
+    table, word, kind, meant
+):
+    assert table.slip_name(word, kind) == meant
+
+
+def test_slip_features_mark_a_known_word_one_slip_from_a_colour_or_room(table):
+    from vla_gr.agent.reading.vocabulary import FEATURES
+
+    fixed, vectors = table.features(["the", "bleu", "chair", "lining", "room"])
+    on = [{FEATURES[k] for k, v in enumerate(vec) if v} for vec in vectors]
+    assert fixed[1] == "bleu"  # a known word: not repaired, only marked
+    assert "slip_colour" in on[1] and "colour" not in on[1]
+    assert "slip_room" in on[3] and not any(f.startswith("slip_") for f in on[0] | on[2])
+
+
+@pytest.mark.parametrize(
+    ("words", "name"),
+    [(["coat", "rack"], None), (["toilet", "paper"], None), (["bed", "sheets"], None),
+     (["coffee", "table"], "table"), (["kitchen", "chair"], "chair")],
+)  # fmt: skip
+def test_a_class_word_inside_a_longer_noun_no_table_holds_names_nothing(table, words, name):
+    found = table.name_in(words, "category")
+    assert (found.name if found else None) == name

@@ -1,7 +1,8 @@
 """A request as the reader sees it: any printable Unicode normalised, then split into words.
 
 Curly quotes, accents, dashes and full-width letters are folded to plain lower-case ASCII
-(``"I’m"`` -> ``"i'm"``, ``"Zoë"`` -> ``"zoe"``, ``"—"`` -> ``"-"``); control characters
+(``"I’m"`` -> ``"i'm"``, ``"Zoë"`` -> ``"zoe"``, ``"—"`` -> ``"-"``), a hyphen inside a
+word is a space (``"living-room"`` -> ``"living room"``); control characters
 become spaces; a request longer than :data:`MAX_REQUEST_CHARS` is refused in one line. Words
 are runs of letters or digits (an inner apostrophe kept: ``"isn't"``); punctuation that can
 end a clause (``, ; : . ! ? -``) is kept as its own word, since it tells where a clause ends.
@@ -19,6 +20,7 @@ __all__ = ["MAX_REQUEST_CHARS", "RequestError", "normalise_request", "request_wo
 #: Longest request read (characters after normalisation); longer ones are refused.
 MAX_REQUEST_CHARS = 400
 
+_IN_WORD_HYPHEN = re.compile(r"(?<=[a-z])-(?=[a-z])")  # "living-room" is "living room"
 _WORD = re.compile(r"[a-z0-9]+(?:'[a-z]+)*|[,;:.!?]|-")
 
 
@@ -38,7 +40,7 @@ def normalise_request(text) -> str:
             f"request of {len(out)} characters is longer than the {MAX_REQUEST_CHARS} read; "
             "say it in fewer words"
         )
-    return out
+    return _IN_WORD_HYPHEN.sub(" ", out)
 
 
 def request_words(text: str) -> list[str]:

