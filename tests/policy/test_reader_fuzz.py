@@ -53,12 +53,10 @@ def _check(reader, strings: list[str]) -> None:
             kept.append((text, normalise_request(text)))
         except RequestError as err:  # only an over-long one, in one line
             assert len(text) > MAX_REQUEST_CHARS // 4 and "\n" not in str(err)
-    for start in range(0, len(kept), 256):
-        part = kept[start : start + 256]
-        for (text, norm), reading in zip(part, reader.read_many([t for t, _ in part])):
-            if reading.understood:  # then a word of it names a category the tables hold
-                words = [table.repair(w) for w in request_words(norm)]
-                assert table.name_in(words, "category") is not None, text
+    for (text, norm), reading in zip(kept, reader.read_many([t for t, _ in kept])):
+        if reading.understood:  # then a word of it names a category the tables hold
+            words = [table.repair(w) for w in request_words(norm)]
+            assert table.name_in(words, "category") is not None, text
 
 
 def test_ten_thousand_random_strings_read_without_error(reader):
