@@ -329,7 +329,7 @@ def _unplaced_colours(words: list[str], tags: list[str]) -> list[str]:
 
 def _spans(words: list[str], tags: list[str]) -> dict[str, list[list[int]]]:
     """{tag: [word index runs]} for every tag but "O". Punctuation inside a run of one tag
-    stays in it ("tete - a - tete", "w . c ."); anything tagged otherwise ends it."""
+    stays in it ("w . c ."); anything tagged otherwise ends it."""
     out: dict[str, list[list[int]]] = {}
     previous = "O"
     for k, (word, tag) in enumerate(zip(words, tags)):

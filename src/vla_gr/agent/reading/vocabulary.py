@@ -98,6 +98,10 @@ FUNCTION_WORDS = _words(
     "will please pls plz go get take bring find show head move walk drive stop"
 )
 _GRAMMAR_WORDS = FUNCTION_WORDS | RELATION_WORDS | NEGATION_WORDS | SEQUENCE_WORDS
+#: Two-letter function words, for a swapped pair of letters ("ot" -> "to").
+_TWO_LETTER_WORDS = frozenset(
+    w for w in FUNCTION_WORDS | RELATION_WORDS if len(w) == 2 and w.isalpha()
+)
 #: Short forms people type for a word (texting and listing habits), read as the word.
 SHORT_FORMS: dict[str, str] = {
     "rm": "room", "rms": "rooms", "bdrm": "bedroom", "bedrm": "bedroom", "bdrms": "bedrooms",
@@ -195,6 +199,21 @@ def _slips(word: str) -> list[set[str]]:
     return [s - {word} for s in (swapped, dropped_or_added, mistyped)]
 
 
+def _slip_targets(words) -> set[str]:
+    """The words of ``words`` a slip may be read as: alphabetic, 3 letters or more."""
+    return {w for w in words if len(w) >= 3 and w.isalpha()}
+
+
+def _one_slip_from(word: str, targets: set[str]) -> str | None:
+    """The one word of ``targets`` a single typing slip from ``word``, trying the likeliest
+    slips first; None when there is none, or a tie among the likeliest."""
+    for slips in _slips(word):
+        found = slips & targets
+        if found:
+            return found.pop() if len(found) == 1 else None
+    return None
+
+
 class WordTable:
     """Phrases (tuples of words) -> :class:`Name`, for objects, rooms and colours."""
 
@@ -231,25 +250,17 @@ class WordTable:
             if len(phrase := _phrase(lemma)) > 1
         } - set(self.objects) - set(self.rooms)  # fmt: skip
         self.known |= _GRAMMAR_WORDS
-        # what a slip is repaired to: one-word names near their class's own senses (not the
-        # thousands of plant species), the words of room names, function words
+        # per table, what a slip is read as: one-word names near their class's own senses
+        # (not the thousands of plant species), the words of room names, colour words
         near = {p for p, depth in self._depth.items() if depth <= self.REPAIR_DEPTH}
-        self._targets = {p[0] for p in near | set(self.colours) if len(p) == 1}
-        self._targets |= {w for p in self.rooms for w in p} | FUNCTION_WORDS | RELATION_WORDS
-        self._targets = {w for w in self._targets if len(w) >= 3 and w.isalpha()}
-        # per table, the words a real word one slip away may have been meant as
         self.slip_targets = {
-            "category": {p[0] for p in near if len(p) == 1},
-            "room": {w for p in self.rooms for w in p},
-            "colour": {p[0] for p in self.colours},
+            "category": _slip_targets(p[0] for p in near if len(p) == 1),
+            "room": _slip_targets(w for p in self.rooms for w in p),
+            "colour": _slip_targets(p[0] for p in self.colours),
         }
-        self.slip_targets = {
-            kind: {w for w in words if len(w) >= 3 and w.isalpha()}
-            for kind, words in self.slip_targets.items()
-        }
-        self._short_words = {  # two-letter function words, for "ot" -> "to"
-            w for w in FUNCTION_WORDS | RELATION_WORDS if len(w) == 2 and w.isalpha()
-        }
+        # what an unknown word's slip is repaired to: any of those, or a function word
+        self._targets = set().union(*self.slip_targets.values())
+        self._targets |= _slip_targets(FUNCTION_WORDS | RELATION_WORDS)
 
     @staticmethod
     def _table(wn, senses: dict, kind: str, depths: dict | None = None) -> dict[tuple, Name]:
@@ -293,14 +304,10 @@ class WordTable:
         if word in SHORT_FORMS:
             return SHORT_FORMS[word]
         if len(word) == 2 and word.isalpha() and word not in _GRAMMAR_WORDS:
-            return word[::-1] if word[::-1] in self._short_words else word
+            return word[::-1] if word[::-1] in _TWO_LETTER_WORDS else word
         if len(word) < 3 or not word.isalpha() or any(w in self.known for w in _singular(word)):
             return word
-        for slips in _slips(word):  # likeliest slips first; a tie is no repair
-            found = slips & self._targets
-            if found:
-                return found.pop() if len(found) == 1 else word
-        return word
+        return _one_slip_from(word, self._targets) or word
 
     @functools.lru_cache(maxsize=65536)  # noqa: B019 (one table per process)
     def slip_name(self, word: str, kind: str) -> str | None:
@@ -309,12 +316,7 @@ class WordTable:
         ``word`` already names something of that kind)."""
         if len(word) < 3 or not word.isalpha() or self.look_up([word], kind) is not None:
             return None
-        targets = self.slip_targets[kind]
-        for slips in _slips(word):  # likeliest slips first; a tie is no repair
-            found = slips & targets
-            if found:
-                return found.pop() if len(found) == 1 else None
-        return None
+        return _one_slip_from(word, self.slip_targets[kind])
 
     def look_up(self, words: Sequence[str], kind: str) -> Name | None:
         """The class ``words`` (one phrase) names in table ``kind`` ("category", "room",
