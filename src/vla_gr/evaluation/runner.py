@@ -236,10 +236,11 @@ def run_episode(
     }
 
 
-def rollout_policy(
+def rollout_rows(
     policy, env_kwargs: dict, episodes: Sequence[int], device: torch.device | str = "cpu"
 ) -> list[dict]:
-    """Run ``policy`` on each episode index of ``episodes``; one final info dict per episode.
+    """Run ``policy`` on each episode index of ``episodes``; each episode's row
+    (:func:`run_episode`).
 
     ``policy`` has the interface of :class:`vla_gr.policy.NavigationPolicy` (``reset()``,
     ``select_action(obs) -> (1, A)``, ``last_timings``, ``episode_summary()``); an ``nn.Module`` is
@@ -260,17 +261,21 @@ def rollout_policy(
         policy.to(device).eval()
     env = make_env(dict(env_kwargs))
     agent = PolicyAgent(policy, device)
-    infos: list[dict] = []
     try:
         with torch.random.fork_rng():
-            for k in episodes:
-                row = run_episode(env, agent, int(k))
-                infos.append(dict(row["metrics"], episode_index=int(k)))
+            return [run_episode(env, agent, int(k)) for k in episodes]
     finally:
         env.close()
         if is_module:
             policy.train(was_training)
-    return infos
+
+
+def rollout_policy(
+    policy, env_kwargs: dict, episodes: Sequence[int], device: torch.device | str = "cpu"
+) -> list[dict]:
+    """:func:`rollout_rows`' final info of each episode (with its ``episode_index``)."""
+    rows = rollout_rows(policy, env_kwargs, episodes, device)
+    return [dict(row["metrics"], episode_index=row["episode_index"]) for row in rows]
 
 
 def summarize(infos: Sequence[dict]) -> dict:
