@@ -7,7 +7,7 @@ PY := $(VENV)/bin/python
 PIP := $(PY) -m pip
 STAMP := $(VENV)/.installed
 APT_STAMP := $(VENV)/.apt-installed
-APT_PACKAGES := libosmesa6 libegl1 libegl-mesa0 libgl1-mesa-dri
+APT_PACKAGES := libosmesa6 libegl1 libegl-mesa0 libgl1-mesa-dri ffmpeg chromium
 export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= egl
 export HF_HUB_OFFLINE ?= 1
@@ -16,9 +16,10 @@ export HF_HUB_OFFLINE ?= 1
 
 setup: $(STAMP)
 
-# Headless MuJoCo rendering needs Mesa's EGL/OSMesa. Installed only when running
-# as root on Debian/Ubuntu and not already present.
-$(APT_STAMP):
+# Headless MuJoCo rendering needs Mesa's EGL/OSMesa, the report's videos ffmpeg (H.264), its
+# test headless Chromium. Installed only when running as root on Debian/Ubuntu and not
+# already present.
+$(APT_STAMP): Makefile
 	@mkdir -p $(VENV)
 	@if [ "$$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then \
 	  if ! dpkg -s $(APT_PACKAGES) >/dev/null 2>&1; then \

@@ -95,8 +95,8 @@ def base_config(args, checkpoint: Path, out: Path):
         f"eval.checkpoint={checkpoint}",
         f"eval.output_dir={out}",
         "eval.progress=false",
-        "eval.gif_successes=0",
-        "eval.gif_per_cause=0",
+        "eval.video_successes=0",
+        "eval.video_per_cause=0",
     ]
     return load_config("config_debug", overrides)[1]
 

@@ -55,8 +55,8 @@ def run_condition(name: str, args, episodes_file: Path | None) -> dict:
         f"agent={args.agent}",
         f"workers={args.workers}",
         f"output_dir={out}",
-        "eval.gif_successes=0",
-        "eval.gif_per_cause=0",
+        "eval.video_successes=0",
+        "eval.video_per_cause=0",
         "eval.progress=false",
         *CONDITIONS[name],
     ]

@@ -7,7 +7,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import imageio.v3 as iio
 import pytest
 import yaml
 
@@ -136,8 +135,8 @@ def test_demo_runs_on_debug_config(tmp_path, capsys):
     assert metrics["agent"] == "expert" and metrics["metrics"]["episodes"] == 1
     assert (out_dir / "episodes.jsonl").read_text().count("\n") == 1
     assert (out_dir / "report.md").is_file()
-    gifs = sorted(out_dir.glob("*.gif"))
-    assert gifs and iio.imread(gifs[0], index=None).ndim == 4  # (N, H, W, 3) frames
+    videos = sorted(out_dir.glob("*.mp4"))
+    assert videos and f'<video src="{videos[0].name}"' in (out_dir / "report.html").read_text()
     # a second demo starts afresh instead of resuming the first one's rows
     assert main(argv) == 0
     assert json.loads((out_dir / "metrics.json").read_text())["timing"]["episodes_run"] == 1

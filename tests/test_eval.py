@@ -23,7 +23,7 @@ from vla_gr.evaluation import AGENTS
 from vla_gr.evaluation.agents import EvalAgent, UntrainedDualSystemAgent, register_agent
 from vla_gr.evaluation.summary import BREAKDOWNS, without_timing
 
-FAST = ["eval.progress=false", "eval.gif_successes=1", "eval.gif_per_cause=0", "seed=3"]
+FAST = ["eval.progress=false", "eval.video_successes=1", "eval.video_per_cause=0", "seed=3"]
 
 
 def cfg_for(out: Path, *overrides: str):
@@ -69,14 +69,15 @@ def test_expert_reaches_every_goal_random_does_worse_and_metrics_match_the_rows(
     assert on_disk["latency_ms"]["decision"]["calls"] == sum(len(r["actions"]) for r in rows)
     assert all(len(r["trace"]["xy"]) == r["metrics"]["steps"] + 1 for r in rows)
     assert (out / "report.md").is_file() and (out / "breakdowns.png").is_file()
-    assert len(list(out.glob("*.gif"))) == 1 and len(list(out.glob("*_topdown.png"))) == 1
+    assert (out / "report.html").is_file()
+    assert len(list(out.glob("*.mp4"))) == 1 and len(list(out.glob("*_topdown.png"))) == 1
 
     noisy = ("env.depth_noise_std=0.05", "env.actuation_noise=0.2")
     cfg = cfg_for(tmp_path / "rand", "agent=random", "num_episodes=3", *noisy)
-    cfg = dataclasses.replace(cfg, eval=dataclasses.replace(cfg.eval, gif_per_cause=1))
+    cfg = dataclasses.replace(cfg, eval=dataclasses.replace(cfg.eval, video_per_cause=1))
     with caplog.at_level(logging.WARNING):
         rand = evaluate(cfg)
-    assert list((tmp_path / "rand").glob("*.gif"))  # replayed with the same noise draws:
+    assert list((tmp_path / "rand").glob("*.mp4"))  # replayed with the same noise draws:
     assert "replay ended elsewhere" not in caplog.text  # every replay ends where the run did
     assert rand["env"]["depth_noise_std"] == 0.05 and rand["env"]["actuation_noise"] == 0.2
     assert rand["metrics"]["success"] < 1.0
@@ -354,7 +355,7 @@ def test_eval_killed_with_sigkill_and_run_again_equals_a_straight_run(tmp_path):
     import time
 
     common = ["agent=random", "num_episodes=6", "env.max_episode_steps=150"]
-    args = ["--config-name", "config_debug", *common, *FAST, "eval.gif_successes=0"]
+    args = ["--config-name", "config_debug", *common, *FAST, "eval.video_successes=0"]
     out = tmp_path / "killed"
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
     cmd = [sys.executable, "-m", "vla_gr.evaluate", *args, f"output_dir={out}"]
@@ -511,8 +512,8 @@ def test_a_request_not_understood_is_declared_counted_and_reported(tmp_path, mon
     out = tmp_path / "reads"
     args = [
         f"output_dir={out}",
-        *[x for x in FAST if "gif_per_cause" not in x],
-        "eval.gif_per_cause=1",
+        *[x for x in FAST if "video_per_cause" not in x],
+        "eval.video_per_cause=1",
         "agent=reads",
         f"episodes={file}",
         "env.max_episode_steps=5",
@@ -550,4 +551,4 @@ def test_a_request_not_understood_is_declared_counted_and_reported(tmp_path, mon
     ]
     assert [line.split("|")[1].strip() for line in listed] == ["0", "2"]  # b's reading agrees
     assert "(not understood)" in listed[0] and f"color={wrong_a['color']}" in listed[1]
-    assert list(out.glob("episode_0000_not_understood*.gif"))  # replayed with its declaration
+    assert list(out.glob("episode_0000_not_understood*.mp4"))  # replayed with its declaration

@@ -32,7 +32,7 @@ from vla_gr.read_cli import add_read_arguments
 # subcommand -> ("module:function", one-line help). Functions take (config_name, overrides).
 COMMANDS: dict[str, tuple[str, str]] = {
     "collect": ("vla_gr.data.collect:run_from_cli", "run the expert and write a zarr dataset"),
-    "demo": ("vla_gr.demo:run_from_cli", "run episodes, print metrics, write GIF + top-down PNG"),
+    "demo": ("vla_gr.demo:run_from_cli", "run episodes, print metrics, write an HTML report"),
     "eval": ("vla_gr.evaluate:run_from_cli", "closed-loop evaluation of an agent: metrics, report"),
     "train": ("vla_gr.train:run_from_cli", "train the agent (single process or under torchrun)"),
 }

@@ -4,8 +4,8 @@ Runs :func:`vla_gr.evaluation.harness.evaluate` with ``demo.*`` in place of ``ev
 default the agent checkpoint shipped in the repository (``checkpoints/vla_gr_cpu``, trained with
 ``config_cpu`` on a 2-core CPU) on 20 ``val`` episodes (houses it never saw) in two worker
 processes. ``demo.output_dir`` (default ``outputs/demo``) gets the evaluation's run folder:
-``metrics.json``, ``episodes.jsonl``, ``report.md`` with bar charts, top-down trajectories
-and RGB | depth | map GIFs. The table is printed to stdout.
+``metrics.json``, ``episodes.jsonl``, ``report.md`` / ``report.html`` with bar charts,
+top-down trajectories and RGB | depth | map videos. The table is printed to stdout.
 
 ``vla-gr demo demo.train=true`` first runs the recipe's stages (``pipeline.stages``, as
 ``vla-gr train`` does; ``config_cpu``: expert data, goal head, rollouts, S1 data, learned S1)
@@ -76,7 +76,7 @@ def run_demo(cfg, resolved=None) -> dict:
     sys.stdout.write(table + "\n")
     causes = {k: v for k, v in metrics["failure_causes"].items() if v}
     sys.stdout.write(f"failure causes: {json.dumps(causes)}\n")
-    sys.stdout.write(f"report: {out_dir / 'report.md'}\n")
+    sys.stdout.write(f"report: {out_dir / 'report.html'} (and report.md)\n")
     sys.stdout.flush()
     return metrics
 

@@ -10,8 +10,9 @@ geodesic expert, which reads the world's privileged state, runs only when named
 Writes to ``output_dir`` (default
 ``outputs/eval/<agent>-<split>-<timestamp>``): ``episodes.jsonl`` (one row per episode,
 flushed as each finishes), ``metrics.json``, ``report.md`` with bar charts, top-down PNGs
-and GIFs. Run again with the same ``output_dir`` after a kill and it resumes: finished
-rows are read back, the rest run, and ``metrics.json`` equals an uninterrupted run's.
+and episode videos, ``report.html`` (the same, with players). Run again with the same
+``output_dir`` after a kill and it resumes: finished rows are read back, the rest run, and
+``metrics.json`` equals an uninterrupted run's.
 ``--config-name compare agents=[a,b]`` runs several agents on the same episodes and
 writes ``compare.md`` / ``compare.json``. After the table it prints, for an agent that reads
 requests, how many it did not fully understand. ``--cfg job`` prints the config it would run

@@ -31,7 +31,7 @@ from vla_gr.evaluation.agents import (
 )
 from vla_gr.policy import VLAGRPolicy, make_policy
 
-FAST = ["eval.progress=false", "eval.gif_successes=0", "eval.gif_per_cause=0"]
+FAST = ["eval.progress=false", "eval.video_successes=0", "eval.video_per_cause=0"]
 TINY = [
     "model.goal_head.text_encoder=hashed",
     "model.encoders.text_encoder=hashed",

@@ -51,7 +51,7 @@ def test_shipped_checkpoint_carries_every_model_key_and_its_weights_are_unchange
 def _run(tmp_path: Path, agent: str, episodes: int) -> dict:
     args = [f"output_dir={tmp_path / agent}", f"agent={agent}", f"num_episodes={episodes}",
             f"checkpoint={SHIPPED}", "workers=2", "eval.progress=false",
-            "eval.gif_successes=0", "eval.gif_per_cause=0"]  # fmt: skip
+            "eval.video_successes=0", "eval.video_per_cause=0"]  # fmt: skip
     return evaluate(load_config("config_cpu", expand_aliases(args))[1])["metrics"]
 
 

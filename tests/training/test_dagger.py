@@ -19,7 +19,7 @@ def _run(tmp_path, split: str, first: int = 0):
     out = tmp_path / f"run-{split}-{first}"
     args = [f"output_dir={out}", "agent=random", f"split={split}", "num_episodes=2",
             f"first_episode={first}",
-            "eval.progress=false", "eval.gif_successes=0", "eval.gif_per_cause=0"]  # fmt: skip
+            "eval.progress=false", "eval.video_successes=0", "eval.video_per_cause=0"]  # fmt: skip
     cfg = load_config("config_debug", [*expand_aliases(args), "env.max_episode_steps=25"])[1]
     evaluate(cfg)
     return out

@@ -194,8 +194,8 @@ def round0(tmp_path_factory) -> tuple[Path, Path]:
     tmp = tmp_path_factory.mktemp("s1round")
     run = tmp / "run"
     args = [f"output_dir={run}", f"checkpoint={SHIPPED}", "split=train", "first_episode=2",
-            "num_episodes=2", "workers=1", "eval.progress=false", "eval.gif_successes=0",
-            "eval.gif_per_cause=0"]  # fmt: skip
+            "num_episodes=2", "workers=1", "eval.progress=false", "eval.video_successes=0",
+            "eval.video_per_cause=0"]  # fmt: skip
     evaluate(load_config("config_cpu", [*expand_aliases(args), "env.max_episode_steps=40"])[1])
     manifest = relabel_run(run, SHIPPED, tmp / "data")
     assert manifest["parts"]["part-0000.safetensors"]["episodes"] == 2

@@ -159,10 +159,11 @@ class EvalConfig:
     goal_seen_pixels: int = 20  # goal instance "seen" when it covers >= this many pixels
     stuck_steps: int = 50  # "stuck": moved < stuck_radius over the last stuck_steps steps
     stuck_radius: float = 0.3  # metres
-    gif_successes: int = 2  # GIFs of the first few successes ...
-    gif_per_cause: int = 1  # ... and of the first episodes of each failure cause
-    gif_image_size: int = 96  # pixels of each GIF panel
-    gif_stride: int = 2  # every n-th step is a GIF frame
+    video_successes: int = 2  # the report's videos: of the first few successes ...
+    video_per_cause: int = 1  # ... and of the first episodes of each failure cause
+    video_all: bool = False  # a video of every episode instead (each replayed: slower)
+    video_panel: int = 256  # pixels of each video panel (RGB, depth, top-down map)
+    video_stride: int = 1  # every n-th step is a video frame (played in real time)
 
     def __post_init__(self) -> None:
         check_choice("eval.split", self.split, SPLITS)
@@ -174,11 +175,11 @@ class EvalConfig:
         check_positive("eval.goal_seen_pixels", self.goal_seen_pixels)
         check_positive("eval.stuck_steps", self.stuck_steps)
         check_positive("eval.stuck_radius", self.stuck_radius)
-        check_positive("eval.gif_successes", self.gif_successes, allow_zero=True)
-        check_positive("eval.gif_per_cause", self.gif_per_cause, allow_zero=True)
-        if not 16 <= self.gif_image_size <= 1024:
-            raise ValueError(f"eval.gif_image_size={self.gif_image_size} must be in [16, 1024]")
-        check_positive("eval.gif_stride", self.gif_stride)
+        check_positive("eval.video_successes", self.video_successes, allow_zero=True)
+        check_positive("eval.video_per_cause", self.video_per_cause, allow_zero=True)
+        if not 32 <= self.video_panel <= 1024:
+            raise ValueError(f"eval.video_panel={self.video_panel} must be in [32, 1024]")
+        check_positive("eval.video_stride", self.video_stride)
 
 
 @dataclass

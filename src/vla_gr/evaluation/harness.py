@@ -1,7 +1,8 @@
 """The evaluation harness: plan the episodes of an eval config, run an agent on them in
-worker processes (resumable), write ``episodes.jsonl``, ``metrics.json`` and ``report.md``,
-and compare several agents on the same episodes. ``vla-gr eval`` (:mod:`vla_gr.evaluate`) is
-its command line; training's pipeline is handed :func:`evaluate` for its rollout stages.
+worker processes (resumable), write ``episodes.jsonl``, ``metrics.json``, ``report.md`` and
+``report.html`` (with episode videos), and compare several agents on the same episodes.
+``vla-gr eval`` (:mod:`vla_gr.evaluate`) is its command line; training's pipeline is handed
+:func:`evaluate` for its rollout stages.
 """
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import shutil
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -202,19 +204,23 @@ def evaluate(cfg, agent: str | None = None) -> dict:
     # (index -> why), so that "num_episodes" above and "episodes" in "metrics" add up
     metrics["skipped_episodes"] = {str(k): v for k, v in sorted(no_episode.items())}
     (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=1))
-    chosen = select_episodes(rows, cfg.eval.gif_successes, cfg.eval.gif_per_cause)
+    e = cfg.eval
+    chosen = rows if e.video_all else select_episodes(rows, e.video_successes, e.video_per_cause)
     pictures = {}
     if chosen:
+        video = shutil.which("ffmpeg") is not None
+        if not video:
+            log.warning("no ffmpeg on PATH: the report has no videos (apt-get install ffmpeg)")
         env = make_env({**env_kwargs, "semantic": False})
         try:
             for row in chosen:
                 pictures[row["episode_index"]] = replay_pictures(
-                    env, row, out_dir, cfg.eval.gif_image_size, cfg.eval.gif_stride
+                    env, row, out_dir, e.video_panel, e.video_stride, video
                 )
         finally:
             env.close()
     write_report(out_dir, metrics, rows, pictures)
-    log.info("wrote %s (metrics.json, episodes.jsonl, report.md)", out_dir)
+    log.info("wrote %s (metrics.json, episodes.jsonl, report.md, report.html)", out_dir)
     return metrics
 
 

@@ -1,15 +1,16 @@
-"""``report.md`` of an eval run: the table, breakdown bar charts, failure causes, requests
-not understood and readings that differ from their episode's description, top-down pictures,
-GIFs.
+"""``report.md`` and ``report.html`` of an eval run: the table, breakdown bar charts, failure
+causes, requests not understood and readings that differ from their episode's description,
+and per pictured episode a top-down PNG and an MP4.
 
 Pictures are made after the run, never in its loop: a selected episode is replayed from its
-recorded actions (the env is deterministic given ``reset(seed=k)``, noise included) while
-frames are rendered at GIF size.
+recorded actions (:mod:`vla_gr.evaluation.video`). ``report.html`` is ``report.md`` rendered
+(Python-Markdown), each video link an inline player; open it in a browser from the run folder.
 """
 
 from __future__ import annotations
 
-import logging
+import html
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -19,12 +20,10 @@ from vla_gr.envs.metrics import format_table
 from vla_gr.evaluation.causes import CAUSES
 from vla_gr.evaluation.summary import (
     BREAKDOWNS,
-    COMPARED_FIELDS,
     LOW_GOAL_CONFIDENCE,
+    fields_text,
     reading_mismatches,
 )
-
-log = logging.getLogger(__name__)
 
 TABLE_KEYS = (
     "success",
@@ -78,39 +77,36 @@ def select_episodes(rows: Sequence[dict], successes: int, per_cause: int) -> lis
     return sorted(chosen, key=lambda r: r["episode_index"])
 
 
-def replay_pictures(env, row: dict, out_dir: Path, panel: int, stride: int) -> dict[str, str]:
-    """Replay ``row``'s actions in ``env``; write its GIF and top-down PNG; their names."""
-    from vla_gr.envs.visualize import EpisodeRecorder, save_top_down_png
+def replay_pictures(
+    env, row: dict, out_dir: Path, panel: int, stride: int, video: bool = True
+) -> dict[str, str | None]:
+    """Write ``row``'s top-down PNG (path, start, goal, scale) and, with ``video``, its MP4
+    replayed in ``env`` (:func:`~vla_gr.evaluation.video.episode_clip`); their file names
+    (``{"topdown": ..., "video": ... or None}``)."""
+    from vla_gr.envs.visualize import save_mp4, save_top_down_png
+    from vla_gr.evaluation.video import episode_clip, reset_to
 
-    env.reset(seed=row["episode_index"])
-    u = env.unwrapped
-    goal_id = int(u.goal.instance_id)
-    start = np.asarray(u.start_pose_world, dtype=np.float64)  # (3,)
-    recorder = EpisodeRecorder(u.house, goal_id, start, panel, float(u.max_depth))
-    recorder.add(*u.render_rgbd(panel), u.robot_pose_world())
-    actions = row["actions"]
-    for t, action in enumerate(actions, start=1):
-        if t == len(actions) and row.get("declared"):
-            u.declare(row["declared"])  # how the episode ended: no motion, no STOP
-        else:
-            env.step(np.asarray(action, dtype=np.float32))
-        if t % stride == 0 or t == len(actions):
-            recorder.add(*u.render_rgbd(panel), u.robot_pose_world())
-    final = u.robot_pose_world()[:2]
-    if not np.allclose(final, row["trace"]["xy"][-1], atol=1e-3):
-        log.warning("episode %d: the replay ended elsewhere", row["episode_index"])
     stem = f"episode_{row['episode_index']:04d}_{row['cause'] or 'success'}"
-    recorder.save(out_dir / f"{stem}.gif")
+    files: dict[str, str | None] = {"topdown": f"{stem}_topdown.png", "video": None}
+    xy = np.asarray(row["trace"]["xy"])  # (T + 1, 2)
+    if video:
+        frames, fps = episode_clip(env, row, panel, stride)
+        files["video"] = save_mp4(out_dir / f"{stem}.mp4", frames, fps).name
+        robot = env.unwrapped.robot_pose_world()  # (3,) where the replay ended, with heading
+    else:
+        reset_to(env, row)
+        robot = xy[-1]
+    u = env.unwrapped
     save_top_down_png(
-        out_dir / f"{stem}_topdown.png",
+        out_dir / files["topdown"],
         u.house,
-        trajectory=np.asarray(row["trace"]["xy"]),
-        start=start,
-        goal_id=goal_id,
-        robot=u.robot_pose_world(),
+        trajectory=xy,
+        start=np.asarray(u.start_pose_world, dtype=np.float64),
+        goal_id=int(u.goal.instance_id),
+        robot=robot,
         size=256,
     )
-    return {"gif": f"{stem}.gif", "topdown": f"{stem}_topdown.png"}
+    return files
 
 
 def breakdown_chart(metrics: dict, path: Path) -> Path:
@@ -141,12 +137,6 @@ def _cell(text: str) -> str:
     """``text`` as one markdown table cell (whitespace runs to one space, pipes escaped)."""
     text = " ".join(str(text).split()).replace("|", "\\|")
     return text or "(blank)"
-
-
-def _fields(fields: dict) -> str:
-    """'category=chair color=red' for the named fields ('nothing' when none is)."""
-    named = [f"{k}={fields[k]}" for k, _ in COMPARED_FIELDS if fields.get(k) is not None]
-    return " ".join(named) or "nothing"
 
 
 def declared_lines(metrics: dict) -> list[str]:
@@ -182,17 +172,17 @@ def reading_lines(rows: Sequence[dict]) -> list[str]:
         "|---|---|---|---|",
     ]
     for m in mismatches["listed"]:
-        reading = _fields(m["reading"]) + (
+        reading = fields_text(m["reading"]) + (
             "" if m["reading"]["understood"] else " (not understood)"
         )
-        lines.append(
-            f"| {m['episode']} | {_cell(m['request'])} | {reading} | {_fields(m['description'])} |"
-        )
+        described = fields_text(m["description"])
+        lines.append(f"| {m['episode']} | {_cell(m['request'])} | {reading} | {described} |")
     return lines
 
 
 def write_report(out_dir: Path, metrics: dict, rows: Sequence[dict], pictures: dict) -> Path:
-    """Write ``report.md`` (and ``breakdowns.png``) into ``out_dir``; returns the md path."""
+    """Write ``report.md``, ``report.html`` and ``breakdowns.png`` into ``out_dir``; returns
+    the md path. ``pictures``: episode index -> :func:`replay_pictures`'s file names."""
     chart = breakdown_chart(metrics, out_dir / "breakdowns.png")
     lines = [
         f"# Evaluation: {metrics['agent']} on {metrics['episodes_source']}",
@@ -237,20 +227,65 @@ def write_report(out_dir: Path, metrics: dict, rows: Sequence[dict], pictures: d
         lines += [format_table(metrics["latency_ms"]), ""]
     if metrics["parameters"]:
         lines += ["## Parameters", "", format_table({"count": metrics["parameters"]}), ""]
-    if pictures:
-        lines += ["## Episodes", ""]
-        by_index = {r["episode_index"]: r for r in rows}
-        for index, files in sorted(pictures.items()):
-            row = by_index[index]
-            lines += [
-                f"### episode {index}: {row['cause'] or 'success'}",
-                "",
-                f"{row['spec']['instruction']} ({row['metrics']['steps']} steps, "
-                f"final distance {row['metrics']['distance_to_goal']:.2f} m)",
-                "",
-                f"![top-down]({files['topdown']}) ![episode]({files['gif']})",
-                "",
-            ]
+    lines += episode_lines(rows, pictures)
+    text = "\n".join(lines)
     path = out_dir / "report.md"
-    path.write_text("\n".join(lines))
+    path.write_text(text)
+    (out_dir / "report.html").write_text(html_page(text, lines[0].lstrip("# ")))
     return path
+
+
+def episode_lines(rows: Sequence[dict], pictures: dict) -> list[str]:
+    """The report's pictured episodes: outcome, request, reading and numbers, a link to the
+    video and the top-down picture ([] when none is pictured)."""
+    from vla_gr.evaluation.video import reading_line
+
+    if not pictures:
+        return []
+    lines = ["", "## Episodes", ""]
+    by_index = {r["episode_index"]: r for r in rows}
+    for index, files in sorted(pictures.items()):
+        row = by_index[index]
+        m = row["metrics"]
+        video = f"[video]({files['video']})" if files["video"] else "(no video: no ffmpeg)"
+        lines += [
+            f"### episode {index}: {row['cause'] or 'success'}",
+            "",
+            f"{_cell(row['spec']['instruction'])} ({m['steps']} steps, final distance "
+            f"{m['distance_to_goal']:.2f} m; {_cell(reading_line(row.get('reading')))})",
+            "",
+            video,
+            "",
+            f"![top-down]({files['topdown']})",
+            "",
+        ]
+    return lines
+
+
+#: A video link of :func:`episode_lines` as Python-Markdown writes it.
+_VIDEO_LINK = re.compile(r'<a href="([^"<>]+\.mp4)">video</a>')
+_VIDEO_TAG = r'<video src="\1" controls muted loop playsinline preload="auto"></video>'
+_STYLE = (
+    "body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;"
+    "color:#222}table{border-collapse:collapse;margin:.5em 0;display:block;overflow-x:auto}"
+    "th,td{border:1px solid #ccc;"
+    "padding:.2em .6em}th{background:#f0f0f0}tbody tr:nth-child(even){background:#fafafa}"
+    "img,video{max-width:100%}video{display:block;background:#000}"
+)
+
+
+def html_page(markdown_text: str, title: str) -> str:
+    """``markdown_text`` (the report's) as a standalone HTML page: its tables and pictures,
+    each ``[video](x.mp4)`` link a player. HTML written in the text (a request's, say) is
+    shown as text, not run."""
+    import markdown
+
+    md = markdown.Markdown(extensions=["tables"])
+    md.preprocessors.deregister("html_block")
+    md.inlinePatterns.deregister("html")
+    body = _VIDEO_LINK.sub(_VIDEO_TAG, md.convert(markdown_text))
+    return (
+        f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
+        f"<title>{html.escape(title)}</title><style>{_STYLE}</style></head>\n"
+        f"<body>\n{body}\n</body></html>\n"
+    )

@@ -141,6 +141,12 @@ COMPARED_FIELDS = (("category", "category"), ("color", "color"), ("room", "room"
                    ("anchor", "near"))  # fmt: skip
 
 
+def fields_text(fields: dict) -> str:
+    """'category=chair color=red' for the named reading fields ('nothing' when none is)."""
+    named = [f"{k}={fields[k]}" for k, _ in COMPARED_FIELDS if fields.get(k) is not None]
+    return " ".join(named) or "nothing"
+
+
 def episode_description(spec: dict) -> dict | None:
     """What episode ``spec`` (a dict) asks for, as reading fields {category, color, room,
     anchor}: its ``description`` when it has one (a hand-written request), else what

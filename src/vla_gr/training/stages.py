@@ -123,8 +123,8 @@ def rollout_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
         checkpoint=str(checkpoint),
         model_overrides=list(stage.model_overrides),
         output_dir=str(out),
-        gif_successes=0,
-        gif_per_cause=0,
+        video_successes=0,
+        video_per_cause=0,
     )
     metrics = services.evaluate(dataclasses.replace(cfg, eval=e))
     log.info("stage %s: SR %.3f on %d %s episodes", stage.name, metrics["metrics"]["success"],
