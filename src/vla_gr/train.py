@@ -17,7 +17,8 @@ config_server`` (DDP: NCCL on GPU, gloo on CPU). Read top to bottom:
    (``training/state.py``);
 4. loop: ``train_step()`` (``training/step.py``: accumulation, AMP, clipping, EMA), then
    ``maybe_log``, ``maybe_validate`` (EMA weights: held-out loss, and closed-loop SR / SPL on
-   a few ``val`` episodes when ``training.eval_episodes`` > 0) and ``maybe_checkpoint``
+   a few ``val`` episodes when ``training.eval_episodes`` > 0, videos of the first
+   ``training.eval_videos`` to TensorBoard) and ``maybe_checkpoint``
    (``latest`` / ``best`` picked by ``training.best_metric``, atomic, rank 0).
 
 The run folder holds ``config.yaml``, ``metrics.jsonl``, ``tensorboard/`` and
@@ -178,8 +179,8 @@ def maybe_validate(run: Run, state: TrainState) -> bool:
                 model, run.val_loader, t.val_batches, device, t.amp, run.cfg.seed
             )
             state.best_val_loss = min(state.best_val_loss, state.val_loss)
-        closed = closed_loop_metrics(
-            model, run.cfg, run.dist, lambda: autocast(device, t.amp), _rollout_summary
+        closed, clips = closed_loop_metrics(
+            model, run.cfg, run.dist, lambda: autocast(device, t.amp), _rollout
         )
         state.evals = held_out | closed
     score = best_score(t.best_metric, state.val_loss, state.evals)
@@ -187,6 +188,7 @@ def maybe_validate(run: Run, state: TrainState) -> bool:
     state.score = max(state.score, score)
     metrics = {"val/loss": state.val_loss, "val/best_loss": state.best_val_loss} | state.evals
     run.logger.log(state.step, {k: v for k, v in metrics.items() if math.isfinite(v)})
+    run.logger.log_videos(state.step, clips)
     return is_best
 
 
@@ -284,11 +286,28 @@ def _set_up(cfg: VLAGRConfig, resolved: DictConfig, dist: DistInfo, resume_step:
     )
 
 
-def _rollout_summary(policy, env_kwargs: dict, indices, device) -> dict[str, float]:
-    """Closed-loop validation's rollouts: the eval harness's episode loop, averaged."""
-    from vla_gr.evaluation.runner import rollout_policy, summarize
+#: Panel size (pixels) and frame stride of closed-loop validation's TensorBoard videos.
+VIDEO_PANEL, VIDEO_STRIDE = 128, 2
 
-    return summarize(rollout_policy(policy, env_kwargs, indices, device))
+
+def _rollout(policy, env_kwargs: dict, indices, device, videos: int) -> tuple[dict, dict]:
+    """Closed-loop validation's rollouts: the eval harness's episode loop, averaged, and
+    ``val/episode_<k>`` videos of the first ``videos`` episodes (replayed, as eval's report)."""
+    from vla_gr.data.collect import make_env
+    from vla_gr.evaluation.runner import rollout_rows, summarize
+    from vla_gr.evaluation.video import episode_clip
+
+    rows = rollout_rows(policy, env_kwargs, indices, device)
+    clips = {}
+    if videos:
+        env = make_env(dict(env_kwargs))
+        try:
+            for row in rows[:videos]:
+                tag = f"val/episode_{row['episode_index']}"
+                clips[tag] = episode_clip(env, row, VIDEO_PANEL, VIDEO_STRIDE)
+        finally:
+            env.close()
+    return summarize([row["metrics"] for row in rows]), clips
 
 
 def _run_dir(cfg: VLAGRConfig, dist: DistInfo) -> Path:

@@ -143,6 +143,8 @@ class TrainingConfig:
     val_batches: int = 8  # batches per validation (per process)
     eval_episodes: int = 0  # closed-loop `val` episodes (0..N-1) at each validation; 0 = off
     eval_max_steps: int = 300  # step budget of each closed-loop episode during training
+    # closed-loop episodes (the first ones) whose videos go to TensorBoard at each validation
+    eval_videos: int = 1
     # What picks `best`: val_loss (lowest) | success | spl (closed loop, highest) | goal_iou
     # (the goal head's held-out pixel IoU, highest; model.agent=dual_system).
     best_metric: str = "val_loss"
@@ -192,6 +194,7 @@ class TrainingConfig:
         check_positive("training.keep_checkpoints", self.keep_checkpoints)
         check_positive("training.eval_episodes", self.eval_episodes, allow_zero=True)
         check_positive("training.eval_max_steps", self.eval_max_steps)
+        check_positive("training.eval_videos", self.eval_videos, allow_zero=True)
         check_choice("training.best_metric", self.best_metric, BEST_METRICS)
         if self.best_metric in CLOSED_LOOP_METRICS and self.eval_episodes == 0:
             raise ValueError(

@@ -2,7 +2,8 @@
 
 At each validation rank 0 runs the (EMA) policy on ``training.eval_episodes`` fixed ``val``
 episodes (indices 0..N-1, so successive evaluations are comparable) and the other ranks
-wait; the metrics are then broadcast so every rank takes the same checkpoint decision.
+wait; the metrics are then broadcast so every rank takes the same checkpoint decision. Rank 0
+also gets videos of the first ``training.eval_videos`` episodes (for TensorBoard).
 Called by ``maybe_validate`` in ``vla_gr.train``, which hands in the rollout (the eval
 harness's episode loop): training imports no evaluation code.
 """
@@ -14,6 +15,7 @@ import math
 import time
 from collections.abc import Callable, Iterable, Mapping
 
+import numpy as np
 import torch
 
 from vla_gr.training.distributed import DistInfo, barrier
@@ -24,36 +26,44 @@ LOGGED = ("success", "spl", "soft_spl", "collision_rate")
 WORST = (-math.inf, -math.inf)
 
 
-#: ``(policy, env kwargs, episode indices, device) -> {metric: mean}`` over those episodes.
-Rollout = Callable[[object, dict, Iterable[int], torch.device], Mapping[str, float]]
+#: A video: frames (each (H, W, 3) uint8) and frames per second.
+Clip = tuple[list[np.ndarray], float]
+#: ``(policy, env kwargs, episode indices, device, videos) -> ({metric: mean} over those
+#: episodes, {tag: clip} of the first ``videos`` episodes)``.
+Rollout = Callable[
+    [object, dict, Iterable[int], torch.device, int], tuple[Mapping[str, float], dict[str, Clip]]
+]
 
 
 def closed_loop_metrics(
     model, cfg, dist: DistInfo, amp_context, rollout: Rollout
-) -> dict[str, float]:
-    """``val/<metric>`` of ``model`` on ``cfg.training.eval_episodes`` episodes ({} when off).
+) -> tuple[dict[str, float], dict[str, Clip]]:
+    """``val/<metric>`` of ``model`` on ``cfg.training.eval_episodes`` episodes ({} when off)
+    and, on rank 0 with TensorBoard on, videos of the first ``training.eval_videos`` of them.
 
     ``amp_context`` is a zero-argument callable returning the autocast context to run in;
-    ``rollout`` runs the episodes and averages their metrics.
+    ``rollout`` runs the episodes, averages their metrics and films the first ones.
     """
     t = cfg.training
     if t.eval_episodes <= 0:
-        return {}
+        return {}, {}
     out: list = [None]
+    clips: dict[str, Clip] = {}
     if dist.is_main:
         from vla_gr.data.collect import env_kwargs_from_config
 
         env_kwargs = env_kwargs_from_config(cfg, "val", semantic=False)
         env_kwargs["max_episode_steps"] = t.eval_max_steps
+        videos = min(t.eval_videos, t.eval_episodes) if cfg.logging.tensorboard else 0
         t0 = time.perf_counter()
         with amp_context():
-            summary = rollout(model, env_kwargs, range(t.eval_episodes), dist.device)
+            summary, clips = rollout(model, env_kwargs, range(t.eval_episodes), dist.device, videos)
         out[0] = {f"val/{k}": float(summary[k]) for k in LOGGED}
         out[0]["val/eval_seconds"] = time.perf_counter() - t0
     if dist.distributed:
         barrier()
         torch.distributed.broadcast_object_list(out, src=0)
-    return out[0]
+    return out[0], clips
 
 
 def best_score(metric: str, val_loss: float, evals: Mapping[str, float]) -> tuple[float, float]:

@@ -1,4 +1,5 @@
-"""Run observability on rank 0: metrics.jsonl, TensorBoard, optional wandb, a progress bar.
+"""Run observability on rank 0: metrics.jsonl, TensorBoard (scalars and rollout videos),
+optional wandb, a progress bar.
 
 Fed by the loop in ``vla_gr.train``; ``read_metrics`` reads ``metrics.jsonl`` back.
 """
@@ -10,8 +11,10 @@ import logging
 import math
 import os
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+
+import numpy as np
 
 log = logging.getLogger(__name__)
 
@@ -78,6 +81,28 @@ class MetricsLogger:
                 self._tb.add_scalar(k, v, step)
         if self._wandb is not None:
             self._wandb.log(clean, step=step)
+
+    def log_videos(
+        self, step: int, clips: Mapping[str, tuple[Sequence[np.ndarray], float]]
+    ) -> None:
+        """Write each ``tag: (frames (each (H, W, 3) uint8), fps)`` of ``clips`` to TensorBoard
+        at ``step``, as an animated GIF image summary (its Images tab plays it; torch's
+        ``add_video`` would need moviepy). No-op without TensorBoard."""
+        if not self.enabled or self._tb is None or not clips:
+            return
+        from tensorboard.compat.proto.summary_pb2 import Summary
+
+        from vla_gr.envs.visualize import gif_bytes
+
+        values = []
+        for tag, (frames, fps) in clips.items():
+            h, w, c = np.shape(frames[0])
+            image = Summary.Image(
+                height=h, width=w, colorspace=c, encoded_image_string=gif_bytes(frames, fps)
+            )
+            values.append(Summary.Value(tag=tag, image=image))
+        # the writer SummaryWriter.add_video uses, handed a summary made here
+        self._tb._get_file_writer().add_summary(Summary(value=values), step)
 
     def close(self) -> None:
         if not self.enabled:
