@@ -33,6 +33,21 @@ def test_html_page_has_tables_pictures_players_and_shows_written_html_as_text():
     assert "<script>" not in page and "&lt;script&gt;alert(1)&lt;/script&gt; chair &amp;" in page
 
 
+def test_without_ffmpeg_the_report_has_pictures_and_says_there_are_no_videos(
+    tmp_path, monkeypatch, caplog
+):
+    from vla_gr.evaluation import harness
+
+    monkeypatch.setattr(harness.shutil, "which", lambda name: None)
+    out = tmp_path / "expert"
+    args = [f"output_dir={out}", "agent=expert", "num_episodes=1", "eval.progress=false"]
+    evaluate(load_config("config_debug", expand_aliases(args))[1])
+    assert "no ffmpeg on PATH" in caplog.text
+    assert not list(out.glob("*.mp4")) and len(list(out.glob("*_topdown.png"))) == 1
+    assert "(no video: no ffmpeg)" in (out / "report.md").read_text()
+    assert "<video" not in (out / "report.html").read_text()
+
+
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     """An expert evaluation of two episodes with a video of every episode."""
