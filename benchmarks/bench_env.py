@@ -53,7 +53,7 @@ def _actions(n: int, num_envs: int | None) -> list[np.ndarray]:
 def time_single(image_size: int, steps: int, runs: int, semantic: bool = False) -> list[float]:
     """Steps/s of one ``gymnasium.make`` env, one value per run."""
     env = gym.make(ENV_ID, image_size=image_size, semantic=semantic)
-    env.reset(seed=0)
+    env.reset(options={"episode": 0})
     acts = _actions(steps, None)
     rates = []
     for run in range(runs + 1):  # run 0 warms up (scene compile, GL context)
@@ -98,7 +98,7 @@ def time_expert(episodes: int, runs: int) -> tuple[list[float], dict]:
         infos, steps = [], 0
         t0 = time.perf_counter()
         for k in range(episodes if run > 0 else 1):
-            obs, info = env.reset(seed=k)
+            obs, info = env.reset(options={"episode": k})
             expert.reset()
             done = False
             while not done:

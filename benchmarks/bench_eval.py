@@ -127,7 +127,7 @@ def bare_loop(env, agent, indices) -> int:
     steps = 0
     with torch.inference_mode():
         for k in indices:
-            obs, _ = env.reset(seed=k)
+            obs, _ = env.reset(options={"episode": k})
             agent.reset(k)
             done = False
             while not done:

@@ -2,9 +2,9 @@
 
     python benchmarks/bench_expert.py --episodes 100 --split val --workers 2
 
-Episodes k = 0..N-1 (``env.reset(seed=k)``) are split across worker processes (one env
-each); the final ``info`` of every episode is aggregated with ``vla_gr.envs.metrics``. Writes
-``<out>.json`` (per-episode infos + aggregate) and ``<out>.md`` (the table).
+Episodes k = 0..N-1 (``env.reset(options={"episode": k})``) are split across worker processes
+(one env each); the final ``info`` of every episode is aggregated with ``vla_gr.envs.metrics``.
+Writes ``<out>.json`` (per-episode infos + aggregate) and ``<out>.md`` (the table).
 """
 
 from __future__ import annotations
@@ -70,7 +70,7 @@ def run_episodes(
         for k in indices:
             expert = GeodesicExpert(env, noise_std=noise_std, noise_prob=noise_prob, seed=k)
             t0 = time.perf_counter()
-            obs, info = env.reset(seed=k)
+            obs, info = env.reset(options={"episode": k})
             expert.reset()
             steps = 0
             terminated = truncated = False

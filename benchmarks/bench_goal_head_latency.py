@@ -52,7 +52,7 @@ def recorded_frames(count: int, split: str) -> list[dict]:
     try:
         episode = 0
         while len(frames) < count:
-            obs, _ = env.reset(seed=episode)
+            obs, _ = env.reset(options={"episode": episode})
             for _ in range(10):
                 frames.append(env_obs_to_frame(obs))
                 obs, *_ = env.step(np.array([0.0, 1.0, -1.0], np.float32))

@@ -79,7 +79,7 @@ def run_episodes(indices, split, image_size, plan_every, max_steps, pictures) ->
     try:
         for k in indices:
             t0 = time.perf_counter()
-            obs, info = env.reset(seed=k)
+            obs, info = env.reset(options={"episode": k})
             goal_id = env.unwrapped.episode_spec.goal_instance_id
             nav.reset()
             follower.reset()

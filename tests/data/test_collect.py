@@ -25,7 +25,7 @@ def _replay(index: int, overrides):
     env = make_env(env_kwargs_from_config(cfg, "val", semantic=True))
     expert = GeodesicExpert(env, cfg.expert.noise_std, cfg.expert.noise_prob)
     expert.rng = np.random.default_rng((cfg.seed, index))  # as collect seeds it
-    obs, _ = env.reset(seed=index)
+    obs, _ = env.reset(options={"episode": index})
     expert.reset()
     labels, executed, done = [], [], False
     while not done:
@@ -150,7 +150,7 @@ def test_distractor_mask_is_the_goals_same_category_objects():
     expert = GeodesicExpert(env, cfg.expert.noise_std, cfg.expert.noise_prob)
     record, _ = run_expert_episode(env, expert, 5, cfg.seed)
     expert.rng = np.random.default_rng((cfg.seed, 5))  # replay with the same noise
-    obs, _ = env.reset(seed=5)
+    obs, _ = env.reset(options={"episode": 5})
     expert.reset()
     u = env.unwrapped
     ids = distractors(u.house, int(u.goal.instance_id))
@@ -172,7 +172,7 @@ def test_every_env_setting_of_the_config_reaches_the_env(rooms):
     _, cfg = load_config("config_debug", overrides)
     env = make_env(env_kwargs_from_config(cfg, "test"))
     try:
-        env.reset(seed=0)
+        env.reset(options={"episode": 0})
         nav = env.unwrapped
         assert (nav.num_rooms, nav.clutter, nav.scene_cache_size) == (rooms, 0.5, 2)
         assert len(nav.house.rooms) == rooms  # the house really has that many rooms

@@ -258,8 +258,8 @@ def val_env():
     env.close()
 
 
-def run_real_episode(env, expert, seed: int):
-    obs, info = env.reset(seed=seed)
+def run_real_episode(env, expert, index: int):
+    obs, info = env.reset(options={"episode": index})
     expert.reset()
     labels, executed = [], []
     terminated = truncated = False

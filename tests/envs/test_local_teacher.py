@@ -71,7 +71,8 @@ def drive(env, teacher, obs, waypoints, max_steps: int):
 
 
 def test_stop_only_inside_success_distance_minus_margin(val_env):
-    _, info = val_env.reset(seed=0)  # start yaw 0.74 rad: odometry and world frames differ
+    # start yaw 0.74 rad: odometry and world frames differ
+    _, info = val_env.reset(options={"episode": 0})
     teacher = LocalTeacher(val_env)
     teacher.reset()
     u = val_env.unwrapped
@@ -111,7 +112,7 @@ def test_stop_only_inside_success_distance_minus_margin(val_env):
 
 
 def test_reaches_a_waypoint_around_obstacles_without_collision(val_env):
-    obs, _ = val_env.reset(seed=4)  # start yaw -0.93 rad
+    obs, _ = val_env.reset(options={"episode": 4})  # start yaw -0.93 rad
     teacher = LocalTeacher(val_env)
     teacher.reset()
     u = val_env.unwrapped

@@ -1,4 +1,4 @@
-"""VLAGR/ObjectNav-v0: sensors, collisions, replay, action checks, STOP, vector envs."""
+"""VLAGR/ObjectNav-v0: sensors, collisions, replay, action checks, STOP, episode selection."""
 
 import dataclasses
 import math
@@ -373,15 +373,20 @@ def test_cached_scenes_render_like_fresh_ones(room):
     env.close()
 
 
-def test_episodes_file_and_seed_selection(tmp_path):
+def test_episodes_file_index_and_seed_selection(tmp_path):
+    from vla_gr.envs.episode_order import episode_at
+
     specs = house_specs(3)
     path = save_episodes(tmp_path / "eps.jsonl", specs)
     env = gym.make(ENV_ID, episodes=str(path))
-    assert env.reset(seed=1)[1]["episode_id"] == "gen-1"
-    assert env.reset()[1]["episode_id"] == "gen-2"  # no seed: the next episode
-    assert env.reset(seed=4)[1]["episode_id"] == "gen-1"  # modulo the file length
+    assert env.reset(options={"episode": 1})[1]["episode_id"] == "gen-1"
+    ids = [env.reset(seed=5)[1]["episode_id"]] + [env.reset()[1]["episode_id"] for _ in range(5)]
+    assert ids == [f"gen-{episode_at(5, p, 3)}" for p in range(6)]  # no seed: the next one
+    assert sorted(ids[:3]) == ["gen-0", "gen-1", "gen-2"]
     obs, _ = env.reset(options={"episode": dataclasses.asdict(specs[0])})  # dicts work too
     assert obs["instruction"] == specs[0].instruction
+    with pytest.raises(ValueError, match=r"must be in \[0, 3\): the episodes file has 3"):
+        env.reset(options={"episode": 3})
     env.close()
 
 
@@ -403,19 +408,21 @@ def test_module_qualified_id_imports_the_package():
     env.close()
 
 
-def test_split_reset_seed_is_deterministic():
+def test_split_episode_index_and_seed_are_deterministic():
     pytest.importorskip("vla_gr.envs.instructions")
     a, b = gym.make(ENV_ID), gym.make(ENV_ID)
-    oa, ia = a.reset(seed=2)
-    ob, ib = b.reset(seed=2)
+    oa, ia = a.reset(options={"episode": 2})
+    ob, ib = b.reset(options={"episode": 2})
     assert ia["episode_id"] == ib["episode_id"] == "val-000002"
     assert oa["rgb"].tobytes() == ob["rgb"].tobytes() and oa["instruction"] == ob["instruction"]
     assert a.unwrapped.episode_spec == b.unwrapped.episode_spec
+    seeded = [[e.reset(seed=2)[1]["episode_id"], e.reset()[1]["episode_id"]] for e in (a, b)]
+    assert seeded[0] == seeded[1] and "val-000002" not in seeded[0]  # a seed is no index
     a.close()
     b.close()
 
 
-@pytest.mark.parametrize("bad", [-1, 2**40, 1.5, "0", None])
+@pytest.mark.parametrize("bad", [-1, 1.5, "0", None])
 def test_failed_reset_leaves_the_env_usable(bad):
     """After a bad first reset the next valid reset + step work; errors quote the input."""
     env = gym.make(ENV_ID, image_size=32)
@@ -427,38 +434,11 @@ def test_failed_reset_leaves_the_env_usable(bad):
             env.reset(seed=bad)
     with pytest.raises(RuntimeError, match="before reset"):
         env.step(np.zeros(3, np.float32))
-    obs, info = env.reset(seed=0)
+    obs, info = env.reset(options={"episode": 0})
     assert info["episode_id"] == "val-000000"
     obs, _, terminated, truncated, info = env.step(np.array([0.5, 0.0, -1.0], np.float32))
     assert obs["rgb"].shape == (32, 32, 3) and not terminated and info["steps"] == 1
     env.close()
-
-
-# ----------------------------------------------------------------------------- vector envs
-
-
-@pytest.mark.parametrize("mode", ["sync", "async"])
-def test_vector_envs_step(mode, tmp_path):
-    specs = house_specs(3)
-    path = save_episodes(tmp_path / "eps.jsonl", specs)
-    vec = gym.make_vec(ENV_ID, num_envs=2, vectorization_mode=mode, episodes=str(path))
-    try:
-        # Instructions must follow the episodes (gymnasium's shared-memory Text read is
-        # frozen at construction unless InstructionSpace keeps it live).
-        obs, info = vec.reset(seed=1)
-        assert list(info["episode_id"]) == ["gen-1", "gen-2"]
-        assert tuple(obs["instruction"]) == (specs[1].instruction, specs[2].instruction)
-        obs, info = vec.reset(seed=0)
-        assert obs["rgb"].shape == (2, 64, 64, 3) and obs["depth"].shape == (2, 64, 64, 1)
-        assert list(info["episode_id"]) == ["gen-0", "gen-1"]
-        assert tuple(obs["instruction"]) == (specs[0].instruction, specs[1].instruction)
-        actions = np.tile(np.array([1.0, 0.2, -1.0], np.float32), (2, 1))
-        for _ in range(3):
-            obs, rew, term, trunc, info = vec.step(actions)
-        assert obs["pose"].shape == (2, 3) and np.all(obs["pose"][:, 0] > 0.05)
-        assert not term.any() and not trunc.any()
-    finally:
-        vec.close()
 
 
 def test_distance_to_goal_stays_finite_inside_the_inflated_margin(env, room):
@@ -489,7 +469,7 @@ def test_noise_options_are_off_by_default_and_replay_per_seeded_episode():
     def run(**kw):
         e = gym.make(ENV_ID, split="val", image_size=16, **kw)
         try:
-            obs, _ = e.reset(seed=0)
+            obs, _ = e.reset(options={"episode": 0})
             depths = [obs["depth"]]
             for _ in range(5):
                 obs, *_ = e.step(np.array([1.0, 0.5, -1.0], np.float32))
@@ -503,7 +483,7 @@ def test_noise_options_are_off_by_default_and_replay_per_seeded_episode():
     np.testing.assert_array_equal(clean_depth, again_depth)
     noisy_depth, noisy_pose = run(depth_noise_std=0.05, actuation_noise=0.3)
     replay_depth, replay_pose = run(depth_noise_std=0.05, actuation_noise=0.3)
-    np.testing.assert_array_equal(noisy_depth, replay_depth)  # seeded by reset(seed=k)
+    np.testing.assert_array_equal(noisy_depth, replay_depth)  # seeded by (k, seed)
     np.testing.assert_array_equal(noisy_pose, replay_pose)
     assert 0.02 < np.std(noisy_depth[0] - clean_depth[0]) < 0.08
     assert not np.allclose(noisy_pose, clean_pose)

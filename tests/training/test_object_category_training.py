@@ -33,7 +33,7 @@ SHIPPED = Path(__file__).resolve().parents[2] / "checkpoints" / "vla_gr_cpu"
 def test_labels_from_geometry_agree_with_the_renderers_segmentation():
     env = ObjectNavEnv(split="val", semantic=True)
     depth, pose, seen = [], [], []
-    obs, _ = env.reset(seed=1)
+    obs, _ = env.reset(options={"episode": 1})
     expert = GeodesicExpert(env)
     for _ in range(120):
         depth.append(obs["depth"])

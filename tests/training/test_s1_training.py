@@ -218,7 +218,7 @@ def test_relabelled_data_is_the_replayed_episode_with_stop_only_at_the_goal(roun
         frames = slice(start, start + steps)
         start += steps
         assert (data["episode"][frames] == data["episode"][frames][0]).all()
-        obs, info = env.reset(seed=int(row["episode_index"]))
+        obs, info = env.reset(options={"episode": int(row["episode_index"])})
         distances, rgbs, depths = [], [], []
         for action in row["actions"]:
             distances.append(info["distance_to_goal"])  # at the frame the label is for
@@ -265,7 +265,7 @@ def test_trained_s1_checkpoint_loads_learned_with_the_init_s2(round0, tmp_path):
         assert torch.equal(loaded[name], value), name
     # it drives: one step on a real observation
     env = make_env({"split": "train", "image_size": 64})
-    obs, _ = env.reset(seed=2)
+    obs, _ = env.reset(options={"episode": 2})
     policy.reset()
     action = policy.select_action(obs)
     assert action.shape == (1, 3) and action.abs().max() <= 1.0

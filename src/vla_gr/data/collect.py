@@ -77,7 +77,7 @@ def run_expert_episode(env, expert, index: int, seed: int = 0) -> tuple[EpisodeR
     from vla_gr.envs.instructions import distractors
 
     expert.rng = np.random.default_rng((seed, index))
-    obs, info = env.reset(seed=index)
+    obs, info = env.reset(options={"episode": index})
     if "semantic" not in obs:
         raise ValueError("the env must be made with semantic=True to record goal masks")
     expert.reset()

@@ -32,6 +32,8 @@ if ENV_ID not in registry:
     register(
         id=ENV_ID,
         entry_point="vla_gr.envs.nav_env:ObjectNavEnv",
+        # gymnasium.make_vec's default: sub-envs told their place share one episode order
+        vector_entry_point="vla_gr.envs.vector:make_vector_env",
         # Truncation is the env's own (``max_episode_steps`` kwarg, default 1000), so metrics
         # and ``truncated`` agree; gymnasium.make(..., max_episode_steps=N) also works.
         max_episode_steps=None,

@@ -19,9 +19,13 @@ Collision rule: a step is a collision when the base touched something during the
 and moved less than half of the commanded distance (a blocked step; sliding along a wall
 at a shallow angle is not a collision).
 
-Episode selection: ``reset(options={"episode": spec})`` runs ``spec``; ``reset(seed=k)``
-runs episode k of the split (or of the ``episodes`` file, modulo its length); a reset
-with neither runs the episode after the previous one. ``options["house"]`` may supply a
+Episode selection: ``reset(options={"episode": k})`` runs episode ``k`` of the split (or of the
+``episodes`` file); ``options={"episode": spec}`` runs an :class:`EpisodeSpec`.
+Otherwise the episode is the next of the env's seeded order (:mod:`~vla_gr.envs.episode_order`):
+``reset(seed=s)`` restarts the order of ``s``, so a seed replays the same episodes and the
+sub-envs of ``gymnasium.make_vec`` (which tell each sub-env its place) never repeat one another.
+Robustness noise of episode ``k`` is drawn from ``(k, seed)``
+(:func:`~vla_gr.envs.episode_order.episode_noise_rng`). ``options["house"]`` may supply a
 hand-built :class:`House` whose seed matches the spec (for tests and tools).
 """
 
@@ -38,13 +42,14 @@ from pathlib import Path
 import gymnasium as gym
 import mujoco
 import numpy as np
-from gymnasium.vector.utils import read_from_shared_memory
 
 from vla_gr.envs import DECLARED_OUTCOMES
 from vla_gr.envs import robot as rb
+from vla_gr.envs.episode_order import EpisodeOrder, episode_noise_rng
 from vla_gr.envs.episodes import (
     EPISODES_PER_SCENE,
     EpisodeSpec,
+    NoEpisodeError,
     load_episodes,
     sample_episode,
     validate_spec,
@@ -53,6 +58,7 @@ from vla_gr.envs.episodes import (
     goal_field as episode_goal_field,
 )
 from vla_gr.envs.geodesic import distance_at, traversable_cells
+from vla_gr.envs.instruction_space import InstructionSpace
 from vla_gr.envs.metrics import EpisodeMeasures
 from vla_gr.envs.rendering import RGBDRenderer, make_gl_context, tune_model_for_speed
 from vla_gr.envs.scene import House, ObjectInstance
@@ -66,48 +72,8 @@ SUBSTEPS = 10  # 10 ms physics steps: stiff enough contacts (< 1 mm penetration 
 BLOCKED_FRACTION = 0.5  # achieved / commanded displacement below this + contact = collision
 INSTRUCTION_MAX_LENGTH = 256
 INSTRUCTION_CHARSET = "".join(c for c in string.printable if c not in "\t\n\r\x0b\x0c")
-
-
-class InstructionSpace(gym.spaces.Text):
-    """The ``instruction`` Text space; batched reads from shared memory stay live.
-
-    Gymnasium's ``AsyncVectorEnv`` reads its shared observation buffer once, at
-    construction; arrays are views and update in place, but a Text read is a tuple of
-    strings frozen at that moment (every later batch would repeat it). For this subclass
-    the read returns a :class:`LiveTextBatch` that decodes the buffer on access.
-    """
-
-
-class LiveTextBatch(Sequence):
-    """Strings (n,) decoded on access from a shared int32 buffer (n, max_length)."""
-
-    def __init__(self, space: gym.spaces.Text, shared_memory, n: int) -> None:
-        self._space, self._shared, self._n = space, shared_memory, n
-
-    def __len__(self) -> int:
-        return self._n
-
-    def __getitem__(self, index):
-        if isinstance(index, slice):
-            return tuple(self[i] for i in range(*index.indices(self._n)))
-        codes = np.frombuffer(self._shared.get_obj(), dtype=np.int32)
-        codes = codes.reshape(self._n, self._space.max_length)[index]  # (max_length,)
-        chars, size = self._space.character_list, len(self._space.character_set)
-        return "".join(chars[c] for c in codes if c < size)
-
-    def __eq__(self, other) -> bool:
-        return isinstance(other, Sequence) and tuple(self) == tuple(other)
-
-    def __deepcopy__(self, memo) -> tuple[str, ...]:
-        return tuple(self)  # AsyncVectorEnv(copy=True) hands out a snapshot
-
-    def __repr__(self) -> str:
-        return repr(tuple(self))
-
-
-@read_from_shared_memory.register(InstructionSpace)
-def _read_instructions(space: InstructionSpace, shared_memory, n: int = 1) -> LiveTextBatch:
-    return LiveTextBatch(space, shared_memory, n)
+RESET_OPTIONS = ("episode", "house")
+MAX_SKIPPED = 100  # split indices in a row that host no episode before the order gives up
 
 
 @dataclass
@@ -172,6 +138,7 @@ class ObjectNavEnv(gym.Env):
         render_mode: str | None = None,
         depth_noise_std: float = 0.0,
         actuation_noise: float = 0.0,
+        sub_env: tuple[int, int] = (0, 1),
     ) -> None:
         if split not in ("train", "val", "test"):
             raise ValueError(f"split={split!r} is not valid; choose one of train, val, test")
@@ -206,7 +173,8 @@ class ObjectNavEnv(gym.Env):
         self.episodes_per_scene = int(episodes_per_scene)
         self.scene_cache_size = int(scene_cache_size)
         self.render_mode = render_mode
-        # Robustness noise (off by default), drawn from ``np_random``: reset(seed=k) replays it.
+        # Robustness noise (off by default), drawn from ``np_random``, which each reset of an
+        # episode k seeds from (k, seed): the episode replays its noise.
         self.depth_noise_std = float(depth_noise_std)  # metres, Gaussian, per pixel
         self.actuation_noise = float(actuation_noise)  # relative, per step, on v and w
         self.max_linear_speed = MAX_LINEAR_SPEED
@@ -219,6 +187,15 @@ class ObjectNavEnv(gym.Env):
             self.episode_list = list(episodes)
             if not self.episode_list:
                 raise ValueError("episodes must not be empty")
+        from vla_gr.envs.house import SPLIT_SIZE
+
+        self.num_episodes = (
+            SPLIT_SIZE * self.episodes_per_scene
+            if self.episode_list is None
+            else len(self.episode_list)
+        )
+        # sub_env = (place, count) among a vector env's sub-envs (set by gymnasium.make_vec)
+        self._order = EpisodeOrder.for_sub_env(self.num_episodes, sub_env)
 
         s = self.image_size
         spaces = {
@@ -239,7 +216,6 @@ class ObjectNavEnv(gym.Env):
         self._gl = None  # made on first render, so that constructing an env is cheap and fork-safe
         self._scene: _Scene | None = None
         self._measures = EpisodeMeasures(self.success_distance)
-        self._episode_index = -1
         self._steps = 0
         self._done = True
         self._last_obs: dict | None = None
@@ -266,23 +242,37 @@ class ObjectNavEnv(gym.Env):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         options = dict(options or {})
-        unknown = set(options) - {"episode", "house"}
+        unknown = set(options) - set(RESET_OPTIONS)
         if unknown:
-            raise ValueError(f"unknown reset options {sorted(unknown)}; use 'episode', 'house'")
+            valid = ", ".join(map(repr, RESET_OPTIONS))
+            raise ValueError(f"unknown reset options {sorted(unknown)}; use {valid}")
         if seed is not None:
             self._check_seed(seed)
         super().reset(seed=seed)
         if self.spec is not None and self.spec.max_episode_steps:
             self.max_episode_steps = int(self.spec.max_episode_steps)
+        if seed is not None:
+            self._order.seed(seed)
         house = options.get("house")
-        spec = options.get("episode")
-        if isinstance(spec, dict):
-            spec = EpisodeSpec.from_dict(spec)
-        if spec is None:
-            spec, house = self._episode_at(seed, house)
-        elif not isinstance(spec, EpisodeSpec):
-            raise ValueError(f"options['episode'] must be an EpisodeSpec, got {type(spec)}")
+        episode = options.get("episode")
+        if isinstance(episode, dict):
+            episode = EpisodeSpec.from_dict(episode)
+        if episode is None:
+            spec, house, index = self._next_in_order(house)
+            noise_seed = self._order.base
+        elif isinstance(episode, EpisodeSpec):
+            spec, index = episode, None  # noise continues np_random (seeded by ``seed``)
+        elif isinstance(episode, (int, np.integer)) and not isinstance(episode, bool):
+            index, noise_seed = self._check_index(episode), seed
+            spec, house = self._episode_at(index, house)
+        else:
+            raise ValueError(
+                f"options['episode'] must be an episode index (int) or an EpisodeSpec, "
+                f"got {episode!r}"
+            )
         self._start_episode(spec, house)
+        if index is not None:
+            self.np_random = episode_noise_rng(index, noise_seed)
         obs = self._observe()
         return obs, self._info()
 
@@ -400,30 +390,44 @@ class ObjectNavEnv(gym.Env):
             raise RuntimeError("no episode: call reset() first")
         return self._scene
 
-    def _check_seed(self, seed) -> None:
-        """Raise (quoting ``seed``) unless it is an episode index of this env."""
+    @staticmethod
+    def _check_seed(seed) -> None:
+        """Raise (quoting ``seed``) unless it is an int >= 0."""
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
-            raise TypeError(f"seed must be an int (the episode index) or None, got {seed!r}")
+            raise TypeError(f"seed must be an int >= 0 or None, got {seed!r}")
         if seed < 0:
-            raise ValueError(f"seed={seed} must be >= 0 (it selects the episode)")
-        from vla_gr.envs.house import SPLIT_SIZE
+            raise ValueError(f"seed={seed} must be >= 0")
 
-        limit = SPLIT_SIZE * self.episodes_per_scene
-        if self.episode_list is None and seed >= limit:
+    def _check_index(self, index) -> int:
+        """``index`` as an int; ValueError (quoting it) unless an episode of this env."""
+        if not 0 <= index < self.num_episodes:
+            where = f"split {self.split!r}" if self.episode_list is None else "the episodes file"
             raise ValueError(
-                f"seed={seed} must be < {limit}: split {self.split!r} has {limit} episodes"
+                f"options['episode']={index} must be in [0, {self.num_episodes}): "
+                f"{where} has {self.num_episodes} episodes"
             )
+        return int(index)
 
-    def _episode_at(self, seed: int | None, house: House | None):
-        index = self._episode_index + 1 if seed is None else int(seed)
-        self._episode_index = index
+    def _episode_at(self, index: int, house: House | None) -> tuple[EpisodeSpec, House | None]:
+        """Episode ``index`` of the file or split (and the house to run it in, if given)."""
         if self.episode_list is not None:
-            return self.episode_list[index % len(self.episode_list)], house
+            return self.episode_list[index], house
         house_here = self._split_house(index)
         spec = sample_episode(
             self.split, index, self.num_rooms, self.clutter, self.episodes_per_scene, house_here
         )
         return spec, house
+
+    def _next_in_order(self, house: House | None) -> tuple[EpisodeSpec, House | None, int]:
+        """The next episode of the seeded order; split indices whose house hosts no episode
+        (:class:`NoEpisodeError`, rare) are passed over."""
+        for _ in range(MAX_SKIPPED):
+            index = self._order.next()
+            try:
+                return (*self._episode_at(index, house), index)
+            except NoEpisodeError as err:
+                logger.debug("episode %d passed over: %s", index, err)
+        raise NoEpisodeError(f"{MAX_SKIPPED} episodes in a row host no episode")
 
     def _split_house(self, index: int) -> House:
         """The house of split episode ``index``: from the scene cache, else generated once."""

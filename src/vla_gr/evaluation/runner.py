@@ -142,7 +142,8 @@ def _goal_pixels(obs: dict, goal_id: int) -> int:
 def run_episode(
     env, agent, index: int, seed: int = 0, thresholds: CauseThresholds | None = None
 ) -> dict:
-    """Run ``agent`` on episode ``index`` (``env.reset(seed=index)``); the episode's row.
+    """Run ``agent`` on episode ``index`` of ``env`` (``reset(options={"episode": index})``: its
+    noise too is the episode's own); the episode's row.
 
     After each ``agent.act`` an agent that declared an outcome (``agent.declared_outcome``)
     ends the episode through ``env.unwrapped.declare(outcome)`` instead of ``env.step`` (its
@@ -160,7 +161,7 @@ def run_episode(
     (T,)}), ``parameters``, ``agent`` (the agent's ``episode_summary()``, {} without one).
     """
     th = thresholds or CauseThresholds(success_distance=env.unwrapped.success_distance)
-    obs, info = env.reset(seed=int(index))
+    obs, info = env.reset(options={"episode": int(index)})
     u = env.unwrapped
     goal_id = int(u.goal.instance_id)
     agent.reset(episode_seed(seed, index))
@@ -246,7 +247,8 @@ def rollout_rows(
     ``select_action(obs) -> (1, A)``, ``last_timings``, ``episode_summary()``); an ``nn.Module`` is
     moved to ``device`` and put in eval mode for the rollout (its train/eval mode is restored
     afterwards). ``env_kwargs`` go to ``gymnasium.make("VLAGR/ObjectNav-v0", ...)``
-    (``max_episode_steps`` is the step budget). Episode ``k`` is ``env.reset(seed=k)``.
+    (``max_episode_steps`` is the step budget). Episode ``k`` is
+    ``env.reset(options={"episode": k})``.
     Each episode seeds torch (replayable sampling) inside a forked RNG: the caller's random
     streams (a training run's) are left as they were.
     """
@@ -304,7 +306,7 @@ def _init_worker(cfg, agent_name: str, env_kwargs: dict, warm_indices: Sequence[
     agent = make_agent(agent_name, cfg, env)
     for index in warm_indices:
         try:
-            obs, _ = env.reset(seed=int(index))
+            obs, _ = env.reset(options={"episode": int(index)})
         except NoEpisodeError:
             continue
         agent.reset(0)

@@ -70,7 +70,7 @@ def caption(row: dict, step: int) -> list[str]:
 
 def reset_to(env, row: dict) -> None:
     """Reset ``env`` to the episode of ``row`` (as the run that wrote the row did)."""
-    env.reset(seed=row["episode_index"])
+    env.reset(options={"episode": int(row["episode_index"])})
 
 
 def replay_frames(env, row: dict, panel: int, stride: int) -> list[np.ndarray]:

@@ -47,7 +47,7 @@ def relabel_episode(env, policy, teacher, row: dict) -> dict[str, np.ndarray]:
     """Replay one recorded episode; S1's inputs and the teacher's labels at every step."""
     s1 = policy.config.s1
     index = int(row["episode_index"])
-    obs, _ = env.reset(seed=index)
+    obs, _ = env.reset(options={"episode": index})
     policy.reset()
     teacher.reset()
     system = policy.dual_system

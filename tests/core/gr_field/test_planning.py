@@ -209,7 +209,7 @@ def test_rendered_walls_land_on_the_true_occupancy():
 
     env = gym.make("VLAGR/ObjectNav-v0", image_size=64)
     try:
-        obs, _ = env.reset(seed=0)
+        obs, _ = env.reset(options={"episode": 0})
         world = env.unwrapped
         house, start = world.house, np.asarray(world.start_pose_world, float)
         field = GRField()
