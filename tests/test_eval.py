@@ -304,16 +304,20 @@ def test_a_run_on_a_checkpoint_rewritten_in_place_is_not_resumed(tmp_path, check
         (["agent=checkpoint", "CKPT", "env.image_size=64"], "model.image_size=32"),
         (["agent=expert", "episodes=BAD"], "bad.jsonl:2: bad episode record"),
         (["agent=expert", "episodes=GOOD", "num_episodes=5"], "exceeds the 1 episodes"),
+        (["agent=expert", "episodes=ELSE"], "else.jsonl:1: instruction 'go to the fridge' does"),
     ],
 )
 def test_bad_input_is_one_line_before_any_episode(tmp_path, capsys, checkpoint, overrides, message):
     from vla_gr.envs.episodes import sample_episode, save_episodes
 
     good = save_episodes(tmp_path / "good.jsonl", [sample_episode("val", 0)])
+    fridge = dataclasses.replace(sample_episode("val", 0), instruction="go to the fridge")
+    save_episodes(tmp_path / "else.jsonl", [fridge])  # words that describe no goal
     bad = tmp_path / "bad.jsonl"
     bad.write_text(good.read_text() + '{"episode_id": "x"}\n')
     subs = {"CKPT": f"checkpoint={checkpoint}", "episodes=BAD": f"episodes={bad}"}
     subs["episodes=GOOD"] = f"episodes={good}"
+    subs["episodes=ELSE"] = f"episodes={tmp_path / 'else.jsonl'}"
     args = [subs.get(o, o) for o in overrides]
     out = tmp_path / "out"
     argv = ["eval", "--config-name", "config_debug", f"output_dir={out}", *FAST, *args]

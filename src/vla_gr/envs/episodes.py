@@ -313,12 +313,17 @@ def save_episodes(path: str | Path, specs) -> Path:
     return path
 
 
-def load_episodes(path: str | Path) -> list[EpisodeSpec]:
-    """Read a JSONL file written by :func:`save_episodes` (blank lines skipped)."""
+def load_episodes(path: str | Path, check: bool = True) -> list[EpisodeSpec]:
+    """Read a JSONL file written by :func:`save_episodes` (blank lines skipped).
+
+    A line that is not an episode record is an :class:`EpisodeFileError` naming it; so is, with
+    ``check`` (the default; off only for tools that rewrite records), a line whose instruction
+    does not describe its goal (:func:`check_instructions`).
+    """
     path = Path(path)
     if not path.is_file():
         raise EpisodeFileError(f"episodes file {str(path)!r} does not exist")
-    specs = []
+    lines, specs = [], []
     with path.open(encoding="utf-8") as f:
         for lineno, line in enumerate(f, start=1):
             if not line.strip():
@@ -327,6 +332,44 @@ def load_episodes(path: str | Path) -> list[EpisodeSpec]:
                 specs.append(EpisodeSpec.from_dict(json.loads(line)))
             except (json.JSONDecodeError, ValueError, TypeError) as err:
                 raise EpisodeFileError(f"{path}:{lineno}: bad episode record: {err}") from err
+            lines.append(lineno)
     if not specs:
         raise EpisodeFileError(f"episodes file {str(path)!r} holds no episodes")
+    if check:
+        check_instructions(specs, [f"{path}:{n}" for n in lines])
     return specs
+
+
+def check_instructions(specs, where) -> None:
+    """EpisodeFileError naming ``where[i]`` (its file and line) for the first spec whose
+    instruction does not describe its goal: the one object of its house that the instruction
+    describes (:func:`~vla_gr.envs.grounding.ground`) must be the goal.
+
+    A spec with a ``description`` declares its goal itself (a hand-written request, the
+    not-understood and absent-object ones among them) and is not read.
+    """
+    from vla_gr.envs.grounding import ground, object_phrase
+    from vla_gr.envs.house import generate_house
+
+    key, house = None, None  # one house at a time: a file's episodes come grouped by house
+    for spec, place in zip(specs, where):
+        if spec.description is not None:
+            continue
+        try:
+            if spec.scene_key != key:
+                house = generate_house(spec.scene_seed, spec.num_rooms, clutter=spec.clutter)
+                key = spec.scene_key
+            goal = house.object(spec.goal_instance_id)
+            found = ground(house, spec.instruction).instance
+        except (KeyError, ValueError) as err:
+            raise EpisodeFileError(
+                f"{place}: instruction {spec.instruction!r} does not pick goal object "
+                f"{spec.goal_instance_id}: {str(err).strip(chr(34))}"
+            ) from None
+        if found is not goal:
+            raise EpisodeFileError(
+                f"{place}: instruction {spec.instruction!r} describes the "
+                f"{object_phrase(house, found)} (object {found.instance_id}), not the goal, the "
+                f"{object_phrase(house, goal)} (object {goal.instance_id}); correct it or give the "
+                "line a 'description' of its goal"
+            )

@@ -79,21 +79,24 @@ def polygon_gap(a: np.ndarray, b: np.ndarray) -> float:
     return float(best)
 
 
-def neighbour_categories(house: House, obj: ObjectInstance) -> set[str]:
-    """Categories (other than obj's) of pieces in obj's room within ``NEAR_DISTANCE``."""
+def neighbours(house: House, obj: ObjectInstance) -> list[ObjectInstance]:
+    """Pieces of other categories in obj's room within ``NEAR_DISTANCE`` of its footprint."""
     fp = obj.footprint()
     reach = np.hypot(*obj.half_extents) + NEAR_DISTANCE
-    out = set()
+    out = []
     for other in house.objects:
         if other.category == obj.category or other.room_index != obj.room_index:
-            continue
-        if other.category in out:
             continue
         if np.hypot(other.x - obj.x, other.y - obj.y) > reach + np.hypot(*other.half_extents):
             continue  # too far for any part of the footprints to come close
         if polygon_gap(fp, other.footprint()) <= NEAR_DISTANCE:
-            out.add(other.category)
+            out.append(other)
     return out
+
+
+def neighbour_categories(house: House, obj: ObjectInstance) -> set[str]:
+    """Categories (other than obj's) of pieces in obj's room within ``NEAR_DISTANCE``."""
+    return {other.category for other in neighbours(house, obj)}
 
 
 def matches(

@@ -25,12 +25,15 @@ Otherwise the episode is the next of the env's seeded order (:mod:`~vla_gr.envs.
 ``reset(seed=s)`` restarts the order of ``s``, so a seed replays the same episodes and the
 sub-envs of ``gymnasium.make_vec`` (which tell each sub-env its place) never repeat one another.
 Robustness noise of episode ``k`` is drawn from ``(k, seed)``
-(:func:`~vla_gr.envs.episode_order.episode_noise_rng`). ``options["house"]`` may supply a
+(:func:`~vla_gr.envs.episode_order.episode_noise_rng`). ``options["instruction"]`` replaces the
+episode's instruction by the user's own words and grounds its goal in the house
+(:mod:`~vla_gr.envs.grounding`): the house and start stay. ``options["house"]`` may supply a
 hand-built :class:`House` whose seed matches the spec (for tests and tools).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import string
@@ -58,6 +61,7 @@ from vla_gr.envs.episodes import (
     goal_field as episode_goal_field,
 )
 from vla_gr.envs.geodesic import distance_at, traversable_cells
+from vla_gr.envs.grounding import ground
 from vla_gr.envs.instruction_space import InstructionSpace
 from vla_gr.envs.metrics import EpisodeMeasures
 from vla_gr.envs.rendering import RGBDRenderer, make_gl_context, tune_model_for_speed
@@ -72,7 +76,7 @@ SUBSTEPS = 10  # 10 ms physics steps: stiff enough contacts (< 1 mm penetration 
 BLOCKED_FRACTION = 0.5  # achieved / commanded displacement below this + contact = collision
 INSTRUCTION_MAX_LENGTH = 256
 INSTRUCTION_CHARSET = "".join(c for c in string.printable if c not in "\t\n\r\x0b\x0c")
-RESET_OPTIONS = ("episode", "house")
+RESET_OPTIONS = ("episode", "instruction", "house")
 MAX_SKIPPED = 100  # split indices in a row that host no episode before the order gives up
 
 
@@ -270,7 +274,7 @@ class ObjectNavEnv(gym.Env):
                 f"options['episode'] must be an episode index (int) or an EpisodeSpec, "
                 f"got {episode!r}"
             )
-        self._start_episode(spec, house)
+        self._start_episode(spec, house, options.get("instruction"))
         if index is not None:
             self.np_random = episode_noise_rng(index, noise_seed)
         obs = self._observe()
@@ -464,10 +468,24 @@ class ObjectNavEnv(gym.Env):
         logger.debug("compiled scene %s (%d geoms)", key, scene.model.ngeom)
         return scene
 
-    def _start_episode(self, spec: EpisodeSpec, house: House | None) -> None:
+    def _start_episode(
+        self, spec: EpisodeSpec, house: House | None, request: str | None = None
+    ) -> None:
+        """Run ``spec`` (in ``house`` if given); a ``request`` replaces its instruction and
+        its goal becomes the object the request describes (the start stays)."""
         self._scene, self._done = None, True  # the old episode is over even if this one fails
+        if request is not None:
+            spec = dataclasses.replace(spec, instruction=request)
         instruction = self._fold_instruction(spec)
         scene = self._load_scene(spec, house)
+        if request is not None:
+            found = ground(scene.house, instruction)
+            spec = dataclasses.replace(
+                spec,
+                goal_instance_id=found.instance.instance_id,
+                goal_category=found.instance.category,
+                description=found.fields,
+            )
         goal_field = scene.goal_fields.get(spec.goal_instance_id)
         if goal_field is None and spec.goal_instance_id in {
             o.instance_id for o in scene.house.objects
@@ -475,7 +493,9 @@ class ObjectNavEnv(gym.Env):
             goal_field = episode_goal_field(scene.house, spec.goal_instance_id)  # (H, W)
             scene.goal_fields[spec.goal_instance_id] = goal_field
         start_distance = validate_spec(spec, scene.house, scene.traversable, goal_field)
-        if abs(start_distance - spec.geodesic_start_distance) > 0.05:
+        if request is not None:
+            spec = dataclasses.replace(spec, geodesic_start_distance=start_distance)
+        elif abs(start_distance - spec.geodesic_start_distance) > 0.05:
             logger.warning(
                 "episode %s: geodesic start distance %.3f differs from the spec's %.3f",
                 spec.episode_id,

@@ -27,7 +27,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
 from vla_gr.envs.episodes import EpisodeSpec
 from vla_gr.envs.instructions import parse_instruction
@@ -344,6 +343,8 @@ def paraphrase_instructions(
     The draws come from torch's global RNG, so a training run that restores it resumes with
     the same rewrites. An instruction that names no known category is kept as it is.
     """
+    import torch  # only here: the world reads the vocabularies without loading torch
+
     n = len(instructions)
     rewrite = (torch.rand(n) < probability).tolist()  # (n,)
     seeds = torch.randint(0, 2**31 - 1, (n,)).tolist()  # (n,)
