@@ -86,13 +86,16 @@ def stage_config(resolved: DictConfig, stage) -> tuple[DictConfig, object]:
 
 def _config_digest(stage, merged: DictConfig) -> str:
     """What decides a stage's output: its kind, inference overrides and resolved config
-    (minus where outputs go and how progress is shown)."""
+    (minus where outputs go, how progress is shown and which episodes are filmed)."""
     tree = OmegaConf.to_container(merged, resolve=True)
     tree.pop("pipeline", None)
     for section in ("collect", "eval", "logging"):
         tree.get(section, {}).pop("progress", None)
     tree.get("eval", {}).pop("workers", None)  # any number of workers gives the same rows
     tree.get("collect", {}).pop("workers", None)
+    for key in [k for k in tree.get("eval", {}) if k.startswith("video_")]:
+        tree["eval"].pop(key)  # which episodes are filmed: pictures, not the product
+    tree.get("training", {}).pop("eval_videos", None)
     payload = {"kind": stage.kind, "model_overrides": list(stage.model_overrides), "cfg": tree}
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
 
