@@ -145,7 +145,8 @@ _SECOND = (
     "and then", "then", "and after that", ", then", ". then", "and then go to", "after that",
     ", and then", "and next", ", next", "and also", "and", ", after that", "and later",
     ". then go to", ". after that, find", ". next, go to", ". then find", ". now", ". and",
-    ". afterwards, go to", "; then", ". after that go to",
+    ". afterwards, go to", "; then", ". after that go to", "followed by", ", followed by",
+    "and afterwards",
 )  # fmt: skip
 _GIBBERISH_LETTERS = "abcdefghijklmnopqrstuvwxyz"
 #: How often a class is said by its name (-1) or by a word 0, 1, 2, 3+ levels below its senses.

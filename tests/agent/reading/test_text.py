@@ -43,3 +43,17 @@ def test_a_hyphen_inside_a_word_is_a_space_and_a_dash_between_words_is_kept():
     assert request_words(normalise_request("Living-room chair - go")) == [
         "living", "room", "chair", "-", "go"
     ]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    "text, words",
+    [
+        ("the bed & the couch", ["the", "bed", "and", "the", "couch"]),
+        ("bed&sofa", ["bed", "and", "sofa"]),
+        ("the bed + the sofa", ["the", "bed", "plus", "the", "sofa"]),
+        ("+ the sofa", ["plus", "the", "sofa"]),
+        ("c++", ["c"]),  # a plus inside a word is no "plus"
+    ],
+)
+def test_an_ampersand_and_a_lone_plus_are_words(text, words):
+    assert request_words(normalise_request(text)) == words

@@ -2,7 +2,8 @@
 
 Curly quotes, accents, dashes and full-width letters are folded to plain lower-case ASCII
 (``"I’m"`` -> ``"i'm"``, ``"Zoë"`` -> ``"zoe"``, ``"—"`` -> ``"-"``), a hyphen inside a
-word is a space (``"living-room"`` -> ``"living room"``); control characters
+word is a space (``"living-room"`` -> ``"living room"``), ``&`` and a lone ``+`` are the
+words "and" and "plus" (a second goal joined by them is still a second goal); control characters
 become spaces; a request longer than :data:`MAX_REQUEST_CHARS` is refused in one line. Words
 are runs of letters or digits (an inner apostrophe kept: ``"isn't"``); punctuation that can
 end a clause (``, ; : . ! ? -``) is kept as its own word, since it tells where a clause ends.
@@ -21,6 +22,8 @@ __all__ = ["MAX_REQUEST_CHARS", "RequestError", "normalise_request", "request_wo
 MAX_REQUEST_CHARS = 400
 
 _IN_WORD_HYPHEN = re.compile(r"(?<=[a-z])-(?=[a-z])")  # "living-room" is "living room"
+_AMPERSAND = re.compile(r"\s*&\s*")  # "the bed & the sofa" is "the bed and the sofa"
+_LONE_PLUS = re.compile(r"(?:^|(?<=\s))\+(?=\s|$)")  # "the bed + the sofa": "plus"
 _WORD = re.compile(r"[a-z0-9]+(?:'[a-z]+)*|[,;:.!?]|-")
 
 
@@ -40,6 +43,7 @@ def normalise_request(text) -> str:
             f"request of {len(out)} characters is longer than the {MAX_REQUEST_CHARS} read; "
             "say it in fewer words"
         )
+    out = _LONE_PLUS.sub("plus", _AMPERSAND.sub(" and ", out)).strip()
     return _IN_WORD_HYPHEN.sub(" ", out)
 
 
