@@ -12,7 +12,7 @@ export MUJOCO_GL ?= egl
 export PYOPENGL_PLATFORM ?= egl
 export HF_HUB_OFFLINE ?= 1
 
-.PHONY: setup apt demo test test-slow lint format bench clean
+.PHONY: setup apt demo test test-slow lerobot-env lint format bench clean
 
 setup: $(STAMP)
 
@@ -33,7 +33,7 @@ $(STAMP): pyproject.toml constraints.txt $(APT_STAMP)
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PIP) install -q --upgrade pip
 	$(PIP) install -q -c constraints.txt torch==2.13.0
-	$(PIP) install -q -c constraints.txt -e ".[dev]"
+	$(PIP) install -q -c constraints.txt -e ".[dev,lerobot]"
 	@touch $@
 
 demo: setup
@@ -44,6 +44,16 @@ test: setup
 
 test-slow: setup
 	$(PY) -m pytest -q -m slow
+
+# lerobot in a virtualenv of its own (its torch and huggingface-hub pins clash with ours; see
+# requirements-lerobot.txt): the slow test loads our LeRobotDataset export with it. ~8 GB.
+LEROBOT_VENV := .venv-lerobot
+lerobot-env: $(LEROBOT_VENV)/.installed
+
+$(LEROBOT_VENV)/.installed: requirements-lerobot.txt
+	@test -x $(LEROBOT_VENV)/bin/python || $(PYTHON) -m venv $(LEROBOT_VENV)
+	$(LEROBOT_VENV)/bin/python -m pip install -q -r requirements-lerobot.txt
+	@touch $@
 
 lint: setup
 	$(VENV)/bin/ruff check src tests benchmarks
@@ -65,4 +75,4 @@ bench: setup
 	$(PY) benchmarks/bench_robustness.py --checkpoint checkpoints/vla_gr_cpu --split test --episodes 100 --workers 2
 
 clean:
-	rm -rf $(VENV) outputs .pytest_cache
+	rm -rf $(VENV) $(LEROBOT_VENV) outputs .pytest_cache

@@ -4,7 +4,8 @@ Every app subcommand takes ``--config-name NAME``, Hydra ``key=value`` overrides
 ``--verbose``, and is also runnable as ``python -m vla_gr.<module>``; its ``--help`` lists the
 keys it reads with their defaults and meanings, and ``--cfg job`` prints the resolved config
 it would run with (an app module's ``compose_from_cli``, else ``load_config``). ``vla-gr store
-verify PATH`` checks an episode store, ``vla-gr store copy SRC DST`` rewrites one;
+verify PATH`` checks an episode store, ``vla-gr store copy SRC DST`` rewrites one,
+``vla-gr store export-lerobot SRC DST`` writes one as a LeRobotDataset folder;
 ``vla-gr export SRC DST [key=value ...]`` writes a checkpoint for shipping;
 ``vla-gr read TEXT [checkpoint=PATH]`` prints how an agent reads a request (exit 0 when
 understood, 3 when not).
@@ -94,6 +95,17 @@ def build_parser() -> argparse.ArgumentParser:
     copy.add_argument("--skip-damaged", action="store_true", help="copy only the intact episodes")
     copy.add_argument("--overwrite", action="store_true", help="replace dst if it exists")
     add_verbose_argument(copy)
+    lerobot = actions.add_parser(
+        "export-lerobot",
+        help="write a store as a LeRobotDataset (v3.0) folder: parquet frames, PNG images, stats",
+    )
+    lerobot.add_argument("src", help="the store to read")
+    lerobot.add_argument("dst", help="the dataset folder (must not exist unless --overwrite)")
+    lerobot.add_argument(
+        "--fps", type=int, default=None, help="frame rate (default: the store's control_hz)"
+    )
+    lerobot.add_argument("--overwrite", action="store_true", help="replace dst if it exists")
+    add_verbose_argument(lerobot)
     export = sub.add_parser(
         "export",
         help="write a checkpoint for shipping (inference settings changed)",
@@ -139,6 +151,18 @@ def copy_store_command(src: str, dst: str, skip_damaged: bool, overwrite: bool) 
     return 0
 
 
+def export_lerobot_command(src: str, dst: str, fps: int | None, overwrite: bool) -> int:
+    """Export store ``src`` as a LeRobotDataset folder ``dst``; prints what it wrote; 0."""
+    from vla_gr.data.lerobot_export import export_lerobot
+
+    out = export_lerobot(src, dst, fps=fps, overwrite=overwrite)
+    sys.stdout.write(
+        f"{out.path}: LeRobotDataset v3.0, {out.episodes} episodes, {out.frames} frames, "
+        f"{out.tasks} tasks at {out.fps} fps\n"
+    )
+    return 0
+
+
 def export_command(
     src: str, dst: str, overrides: Sequence[str], fill_missing: bool, rename_keys: bool = False
 ) -> int:
@@ -166,6 +190,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command == "store" and args.action == "verify":
         return run_command(
             f"{prog} verify", verify_store_command, args.path, not args.fast, verbose=args.verbose
+        )
+    if args.command == "store" and args.action == "export-lerobot":
+        return run_command(
+            f"{prog} export-lerobot",
+            export_lerobot_command,
+            args.src,
+            args.dst,
+            args.fps,
+            args.overwrite,
+            verbose=args.verbose,
         )
     if args.command == "store":
         return run_command(
