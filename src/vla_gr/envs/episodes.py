@@ -26,6 +26,7 @@ from vla_gr.envs.geodesic import (
 from vla_gr.envs.geodesic import goal_distance_field as goal_field
 from vla_gr.envs.scene import House
 from vla_gr.errors import UserError
+from vla_gr.text_fold import fold_to_ascii
 
 logger = logging.getLogger(__name__)
 
@@ -34,6 +35,7 @@ EPISODES_PER_SCENE = 4
 MIN_START_DISTANCE = 2.0  # m, geodesic start -> goal footprint
 MAX_START_DISTANCE = 15.0
 START_CLEARANCE = 0.05  # m of free space around the base at the start, beyond its radius
+INSTRUCTION_MAX_LENGTH = 256  # characters of an instruction, after folding to ASCII
 _SPLIT_CODE = {"train": 11, "val": 23, "test": 37}
 
 
@@ -48,6 +50,8 @@ class NoEpisodeError(ValueError):
 
 #: The keys of an episode's ``description`` (the generator's fields of its goal).
 DESCRIPTION_FIELDS: tuple[str, ...] = ("category", "color", "room", "near")
+#: The text fields of an episode record.
+TEXT_FIELDS: tuple[str, ...] = ("episode_id", "split", "goal_category", "instruction")
 
 
 @dataclass(frozen=True)
@@ -106,6 +110,9 @@ class EpisodeSpec:
                 f"unknown fields {sorted(extra)}"
             )
         rec = dict(record)
+        texts = {k: type(rec[k]).__name__ for k in TEXT_FIELDS if not isinstance(rec[k], str)}
+        if texts:
+            raise ValueError(f"episode record fields must be text: {texts} are not")
         rec["num_rooms"] = None if rec["num_rooms"] is None else int(rec["num_rooms"])
         for key in ("clutter", "start_x", "start_y", "start_yaw", "geodesic_start_distance"):
             rec[key] = float(rec[key])
@@ -128,6 +135,24 @@ def check_description(description, episode_id: str = "?") -> None:
     bad = {k: v for k, v in description.items() if v is not None and not isinstance(v, str)}
     if bad:
         raise ValueError(f"episode {episode_id}: description values must be str or None: {bad}")
+
+
+def folded_instruction(spec: EpisodeSpec) -> str:
+    """The spec's instruction folded to printable ASCII (:func:`fold_to_ascii`), as the world
+    shows it; ValueError in one line when it is not a str or folds to more than
+    ``INSTRUCTION_MAX_LENGTH`` characters."""
+    if not isinstance(spec.instruction, str):
+        raise ValueError(
+            f"episode {spec.episode_id}: instruction must be a str, "
+            f"got {type(spec.instruction).__name__}"
+        )
+    folded = fold_to_ascii(spec.instruction)
+    if len(folded) > INSTRUCTION_MAX_LENGTH:
+        raise ValueError(
+            f"episode {spec.episode_id}: instruction of {len(folded)} characters is longer "
+            f"than the limit of {INSTRUCTION_MAX_LENGTH}; say it in fewer words"
+        )
+    return folded
 
 
 def episode_rng(split: str, index: int) -> np.random.Generator:
@@ -316,34 +341,38 @@ def save_episodes(path: str | Path, specs) -> Path:
 def load_episodes(path: str | Path, check: bool = True) -> list[EpisodeSpec]:
     """Read a JSONL file written by :func:`save_episodes` (blank lines skipped).
 
-    A line that is not an episode record is an :class:`EpisodeFileError` naming it; so is, with
-    ``check`` (the default; off only for tools that rewrite records), a line whose instruction
-    does not describe its goal (:func:`check_instructions`).
+    A line that is not UTF-8 text holding an episode record is an :class:`EpisodeFileError`
+    naming it; so is, with ``check`` (the default; off only for tools that rewrite records), a
+    line that cannot run in its house or whose instruction does not describe its goal
+    (:func:`check_episodes`).
     """
     path = Path(path)
     if not path.is_file():
         raise EpisodeFileError(f"episodes file {str(path)!r} does not exist")
     lines, specs = [], []
-    with path.open(encoding="utf-8") as f:
-        for lineno, line in enumerate(f, start=1):
-            if not line.strip():
-                continue
+    with path.open("rb") as f:
+        for lineno, raw in enumerate(f, start=1):
             try:
+                line = raw.decode("utf-8")
+                if not line.strip():
+                    continue
                 specs.append(EpisodeSpec.from_dict(json.loads(line)))
-            except (json.JSONDecodeError, ValueError, TypeError) as err:
+            except (json.JSONDecodeError, ValueError, TypeError) as err:  # Unicode errors too
                 raise EpisodeFileError(f"{path}:{lineno}: bad episode record: {err}") from err
             lines.append(lineno)
     if not specs:
         raise EpisodeFileError(f"episodes file {str(path)!r} holds no episodes")
     if check:
-        check_instructions(specs, [f"{path}:{n}" for n in lines])
+        check_episodes(specs, [f"{path}:{n}" for n in lines])
     return specs
 
 
-def check_instructions(specs, where) -> None:
-    """EpisodeFileError naming ``where[i]`` (its file and line) for the first spec whose
-    instruction does not describe its goal: the one object of its house that the instruction
-    describes (:func:`~vla_gr.envs.grounding.ground`) must be the goal.
+def check_episodes(specs, where) -> None:
+    """EpisodeFileError naming ``where[i]`` (its file and line) for the first spec that the
+    world would refuse at reset (its instruction too long once folded, :func:`folded_instruction`;
+    its goal or start not valid in its house, :func:`validate_spec`) or whose instruction does
+    not describe its goal: the one object of its house that the instruction describes
+    (:func:`~vla_gr.envs.grounding.ground`) must be the goal.
 
     A spec with a ``description`` declares its goal itself (a hand-written request, the
     not-understood and absent-object ones among them) and is not read.
@@ -351,17 +380,28 @@ def check_instructions(specs, where) -> None:
     from vla_gr.envs.grounding import ground, object_phrase
     from vla_gr.envs.house import generate_house
 
-    key, house = None, None  # one house at a time: a file's episodes come grouped by house
+    key = house = traversable = None  # one house at a time: a file's episodes come by house
     for spec, place in zip(specs, where):
+        if spec.scene_key != key:
+            try:
+                house = generate_house(spec.scene_seed, spec.num_rooms, clutter=spec.clutter)
+            except ValueError as err:
+                raise EpisodeFileError(
+                    f"{place}: no house has scene_seed={spec.scene_seed}, "
+                    f"num_rooms={spec.num_rooms}, clutter={spec.clutter}: {err}"
+                ) from None
+            key, traversable = spec.scene_key, traversable_cells(house)
+        try:
+            folded_instruction(spec)
+            validate_spec(spec, house, traversable)
+        except ValueError as err:
+            raise EpisodeFileError(f"{place}: {err}") from None
         if spec.description is not None:
             continue
+        goal = house.object(spec.goal_instance_id)
         try:
-            if spec.scene_key != key:
-                house = generate_house(spec.scene_seed, spec.num_rooms, clutter=spec.clutter)
-                key = spec.scene_key
-            goal = house.object(spec.goal_instance_id)
             found = ground(house, spec.instruction).instance
-        except (KeyError, ValueError) as err:
+        except ValueError as err:
             raise EpisodeFileError(
                 f"{place}: instruction {spec.instruction!r} does not pick goal object "
                 f"{spec.goal_instance_id}: {str(err).strip(chr(34))}"

@@ -10,7 +10,8 @@ no motion, no STOP, ``info["declared"]`` names it (None after every other reset 
 
 Instruction: any printable Unicode; the observation's ``instruction`` is the spec's folded to
 printable ASCII (:func:`vla_gr.text_fold.fold_to_ascii`), at most
-``INSTRUCTION_MAX_LENGTH`` characters after folding (a longer one is refused at reset).
+``INSTRUCTION_MAX_LENGTH`` characters after folding (a longer one is refused at reset; in an
+``episodes`` file, naming its line when the file is loaded).
 
 Reward: 1 for a successful STOP, else 0 (ObjectNav is judged by ``info``'s metrics,
 which also carries ``collided`` for the last step).
@@ -51,8 +52,10 @@ from vla_gr.envs import robot as rb
 from vla_gr.envs.episode_order import EpisodeOrder, episode_noise_rng
 from vla_gr.envs.episodes import (
     EPISODES_PER_SCENE,
+    INSTRUCTION_MAX_LENGTH,
     EpisodeSpec,
     NoEpisodeError,
+    folded_instruction,
     load_episodes,
     sample_episode,
     validate_spec,
@@ -68,13 +71,11 @@ from vla_gr.envs.rendering import RGBDRenderer, make_gl_context, tune_model_for_
 from vla_gr.envs.scene import House, ObjectInstance
 from vla_gr.geometry.pose2d import wrap_angle
 from vla_gr.geometry.robot_spec import MAX_ANGULAR_SPEED, MAX_LINEAR_SPEED
-from vla_gr.text_fold import fold_to_ascii
 
 logger = logging.getLogger(__name__)
 
 SUBSTEPS = 10  # 10 ms physics steps: stiff enough contacts (< 1 mm penetration at a wall)
 BLOCKED_FRACTION = 0.5  # achieved / commanded displacement below this + contact = collision
-INSTRUCTION_MAX_LENGTH = 256
 INSTRUCTION_CHARSET = "".join(c for c in string.printable if c not in "\t\n\r\x0b\x0c")
 RESET_OPTIONS = ("episode", "instruction", "house")
 MAX_SKIPPED = 100  # split indices in a row that host no episode before the order gives up
@@ -476,7 +477,7 @@ class ObjectNavEnv(gym.Env):
         self._scene, self._done = None, True  # the old episode is over even if this one fails
         if request is not None:
             spec = dataclasses.replace(spec, instruction=request)
-        instruction = self._fold_instruction(spec)
+        instruction = folded_instruction(spec)
         scene = self._load_scene(spec, house)
         if request is not None:
             found = ground(scene.house, instruction)
@@ -515,23 +516,6 @@ class ObjectNavEnv(gym.Env):
         self._measures.reset((spec.start_x, spec.start_y), start_distance)
         self._steps = 0
         self._done = False
-
-    @staticmethod
-    def _fold_instruction(spec: EpisodeSpec) -> str:
-        """The spec's instruction folded to printable ASCII (:func:`fold_to_ascii`);
-        ValueError in one line when it is not a str or folds to more than the limit."""
-        if not isinstance(spec.instruction, str):
-            raise ValueError(
-                f"episode {spec.episode_id}: instruction must be a str, "
-                f"got {type(spec.instruction).__name__}"
-            )
-        folded = fold_to_ascii(spec.instruction)
-        if len(folded) > INSTRUCTION_MAX_LENGTH:
-            raise ValueError(
-                f"episode {spec.episode_id}: instruction of {len(folded)} characters is longer "
-                f"than the limit of {INSTRUCTION_MAX_LENGTH}; say it in fewer words"
-            )
-        return folded
 
     def _renderer(self, size: int, main: bool) -> RGBDRenderer:
         scene = self._require_scene()
