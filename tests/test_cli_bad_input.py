@@ -86,3 +86,13 @@ def test_a_non_ascii_instruction_is_read_folded_as_the_world_shows_it(tmp_path):
     accented = spec.instruction.replace("e", "\u00e9").replace("a", "\u00e1") + " \u2713"
     specs = [dataclasses.replace(spec, instruction=accented)]
     assert load_episodes(save_episodes(tmp_path / "eps.jsonl", specs)) == specs
+
+
+def test_collect_past_the_end_of_its_episodes_file_names_the_keys(tmp_path, capsys):
+    path = save_episodes(tmp_path / "eps.jsonl", [sample_episode("val", 0)])
+    out = tmp_path / "c.zarr"
+    argv = ["collect", *DEBUG, f"env.episodes={path}", "collect.num_episodes=3"]
+    assert main([*argv, f"collect.output={out}"]) == 2
+    err = _one_or_two_lines(capsys.readouterr().err, "collect")
+    assert "collect.num_episodes=3" in err and f"the 1 episodes of episodes file {path}" in err
+    assert not out.exists()

@@ -20,6 +20,7 @@ import numpy as np
 
 from vla_gr import __version__
 from vla_gr.data.store import EpisodeRecord, EpisodeStore, StoreError
+from vla_gr.errors import ConfigError
 
 log = logging.getLogger(__name__)
 
@@ -210,6 +211,23 @@ def open_output_store(path: Path, mode: str, image_size: int, info: dict) -> Epi
     return EpisodeStore.create(path, image_size, overwrite=mode == "overwrite", info=info)
 
 
+def check_episode_range(cfg) -> None:
+    """ConfigError unless episodes ``collect.first_episode`` .. ``+ collect.num_episodes`` exist
+    in ``env.episodes`` (an EpisodeFileError naming its line if the file is bad) or the split."""
+    from vla_gr.envs.episodes import EPISODES_PER_SCENE, load_episodes
+    from vla_gr.envs.house import SPLIT_SIZE
+
+    c = cfg.collect
+    size, what = SPLIT_SIZE * EPISODES_PER_SCENE, f"split {c.split!r}"
+    if cfg.env.episodes:
+        size, what = len(load_episodes(cfg.env.episodes)), f"episodes file {cfg.env.episodes}"
+    if c.first_episode + c.num_episodes > size:
+        raise ConfigError(
+            f"collect.first_episode={c.first_episode} + collect.num_episodes={c.num_episodes} "
+            f"exceeds the {size} episodes of {what}"
+        )
+
+
 def collect(cfg) -> dict:
     """Run ``vla-gr collect`` for a validated ``VLAGRConfig``; returns the summary dict."""
     from tqdm import tqdm
@@ -228,10 +246,7 @@ def collect(cfg) -> dict:
         "seed": cfg.seed,
         "vla_gr_version": __version__,
     }
-    if cfg.env.episodes:  # a bad episodes file fails before the store is created
-        from vla_gr.envs.episodes import load_episodes
-
-        load_episodes(cfg.env.episodes)
+    check_episode_range(cfg)  # a bad episodes file or range fails before the store is created
     store = open_output_store(path, c.mode, cfg.env.image_size, info)
     wanted = list(range(c.first_episode, c.first_episode + c.num_episodes))
     present = set(store.episode_indices.tolist())
