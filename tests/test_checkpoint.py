@@ -184,19 +184,41 @@ def test_sigkill_during_checkpoint_write_keeps_latest_loadable(tmp_path, mode):
     assert ckpt.read_checkpoint(tmp_path / "latest").state["step"] == 1000
 
 
-def test_a_run_folder_instead_of_a_checkpoint_names_the_checkpoint(tmp_path):
-    run = tmp_path / "run"
-    _save(run / "checkpoints", 1, links=("latest", "best"))
-    latest = run / "checkpoints" / "latest"
-    for given in (run, run / "checkpoints"):
-        with pytest.raises(ckpt.CheckpointError, match="did you mean") as err:
+def test_a_run_folder_instead_of_a_checkpoint_names_the_checkpoints_it_holds(tmp_path):
+    run = tmp_path / "stage" / "run"
+    _save(run / "checkpoints", 1)
+    _save(run / "checkpoints", 2, links=("latest", "best"))
+    best, latest = run / "checkpoints" / "best", run / "checkpoints" / "latest"
+    held = "checkpoints/best, checkpoints/latest, checkpoints/step_00000002, checkpoints/step_0000"
+    for given, kind, names in (
+        (run, "run folder", held),
+        (run / "checkpoints", "checkpoints folder", held.replace("checkpoints/", "")),
+        (tmp_path / "stage", "folder", held.replace("checkpoints/", "run/checkpoints/")),
+    ):
+        with pytest.raises(ckpt.CheckpointError) as err:
             ckpt.read_checkpoint(given)
-        assert str(latest) in str(err.value) and "manifest" not in str(err.value)
+        message = str(err.value)
+        assert message.startswith(f"{given} is a {kind}, not a checkpoint; did you mean {best}?")
+        assert f"It holds {names}" in message and "manifest" not in message, message
+    with pytest.raises(ckpt.CheckpointError, match=f"did you mean {best}"):
+        VLAGRPolicy.from_pretrained(run)  # the agent's checkpoint: best
     with pytest.raises(ckpt.CheckpointError, match=f"did you mean {latest}"):
-        VLAGRPolicy.from_pretrained(run)
-    (run / "checkpoints" / "latest").unlink()  # only `best` left: that is the suggestion
-    with pytest.raises(ckpt.CheckpointError, match=f"did you mean {run / 'checkpoints' / 'best'}"):
+        ckpt.read_checkpoint(run, prefer="latest")  # resuming: latest
+    for link in ("best", "latest"):
+        (run / "checkpoints" / link).unlink()  # step folders only: the newest is suggested
+    with pytest.raises(ckpt.CheckpointError, match=f"did you mean {run}/checkpoints/step_0+2\\?"):
         ckpt.read_checkpoint(run)
+
+
+def test_a_folder_without_checkpoints_says_what_a_checkpoint_is(tmp_path):
+    with pytest.raises(ckpt.CheckpointError) as err:
+        ckpt.read_checkpoint(tmp_path)
+    assert "is not a checkpoint" in str(err.value) and "incomplete" not in str(err.value)
+    assert "<run>/checkpoints/best" in str(err.value)
+    path = _save(tmp_path / "checkpoints", 1)
+    (path / "manifest.json").unlink()  # a checkpoint's files without their manifest
+    with pytest.raises(ckpt.CheckpointError, match="has no manifest.json: incomplete write"):
+        ckpt.read_checkpoint(path)
 
 
 @pytest.mark.parametrize(

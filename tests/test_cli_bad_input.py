@@ -9,7 +9,9 @@ import json
 from pathlib import Path
 
 import pytest
+import torch
 
+from vla_gr import checkpoint as ckpt
 from vla_gr.cli import main
 from vla_gr.envs.episodes import DESCRIPTION_FIELDS, sample_episode, save_episodes
 
@@ -96,3 +98,20 @@ def test_collect_past_the_end_of_its_episodes_file_names_the_keys(tmp_path, caps
     err = _one_or_two_lines(capsys.readouterr().err, "collect")
     assert "collect.num_episodes=3" in err and f"the 1 episodes of episodes file {path}" in err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("command", ["eval", "read"])
+def test_a_run_folder_as_the_checkpoint_names_its_checkpoints(tmp_path, capsys, command):
+    run = tmp_path / "run"
+    for step, links in ((1, ()), (2, ("latest", "best"))):
+        ckpt.save_checkpoint(
+            run / "checkpoints", step, {"w": torch.zeros(1)}, {"step": step}, "a: 1\n", None, links
+        )
+    argv = {
+        "eval": ["eval", *DEBUG, f"checkpoint={run}", f"output_dir={tmp_path / 'out'}"],
+        "read": ["read", "find the chair", f"checkpoint={run}"],
+    }[command]
+    assert main(argv) == 2
+    err = _one_or_two_lines(capsys.readouterr().err, command)
+    assert f"{run} is a run folder, not a checkpoint; did you mean {run}/checkpoints/best?" in err
+    assert "checkpoints/latest, checkpoints/step_00000002, checkpoints/step_00000001" in err

@@ -50,6 +50,12 @@ STATE_FILE = "trainer_state.json"
 TRAINING_FILE = "training_state.safetensors"
 MANIFEST_FILE = "manifest.json"
 LINKS = ("latest", "best")
+#: A folder given as a checkpoint that is none is searched this deep for the checkpoints it
+#: holds (a pipeline's ``<stage>/run/checkpoints/best``), looking at this many folders at most;
+#: the error names this many of them.
+SEARCH_DEPTH = 4
+SEARCH_FOLDERS = 2000
+MAX_NAMED = 6
 
 
 class CheckpointError(ValueError):
@@ -266,8 +272,14 @@ def prune_checkpoints(checkpoints_dir: str | Path, keep: int) -> list[Path]:
 # --------------------------------------------------------------------------- reading
 
 
-def read_checkpoint(path: str | Path, verify: bool = True) -> LoadedCheckpoint:
-    """Read and verify a checkpoint folder (or a ``latest``/``best`` link to one)."""
+def read_checkpoint(
+    path: str | Path, verify: bool = True, prefer: str = "best"
+) -> LoadedCheckpoint:
+    """Read and verify a checkpoint folder (or a ``latest``/``best`` link to one).
+
+    A folder that holds checkpoints (a run, its ``checkpoints/``, a pipeline's stage) is
+    refused naming them and suggesting one (a ``prefer`` link first: ``best`` to run an agent,
+    ``latest`` to resume)."""
     path = Path(path)
     if not path.exists():
         hint = " (broken link)" if path.is_symlink() else ""
@@ -275,13 +287,7 @@ def read_checkpoint(path: str | Path, verify: bool = True) -> LoadedCheckpoint:
     if not path.is_dir():
         raise CheckpointError(f"checkpoint {path} is not a folder")
     if not (path / MANIFEST_FILE).is_file():
-        suggestion = _checkpoint_inside(path)
-        if suggestion is not None:
-            kind = "checkpoints" if suggestion.parent == path else "run"
-            raise CheckpointError(
-                f"{path} is a {kind} folder, not a checkpoint; did you mean {suggestion}?"
-            )
-        raise CheckpointError(f"checkpoint {path} has no {MANIFEST_FILE}: incomplete write?")
+        raise _not_a_checkpoint(path, prefer)
     manifest = _parse(path, MANIFEST_FILE, _read_json)
     if manifest.get("format") != FORMAT_NAME:
         raise CheckpointError(f"checkpoint {path}: format {manifest.get('format')!r} unknown")
@@ -316,14 +322,59 @@ def read_checkpoint(path: str | Path, verify: bool = True) -> LoadedCheckpoint:
     )
 
 
-def _checkpoint_inside(folder: Path) -> Path | None:
-    """``<run>/checkpoints/latest`` (or ``best``) when ``folder`` is a run or its
-    ``checkpoints/`` folder, else None."""
-    for root in (folder / "checkpoints", folder):
-        for link in LINKS:
-            if (root / link / MANIFEST_FILE).is_file():
-                return root / link
-    return None
+def _not_a_checkpoint(path: Path, prefer: str) -> CheckpointError:
+    """The error for folder ``path`` without a manifest: the checkpoints it holds, the
+    ``prefer`` link (else the other link, else the newest) suggested; an incomplete write when
+    it holds a checkpoint's files; else what a checkpoint looks like."""
+    found = checkpoints_in(path)
+    if not found:
+        if any((path / f).is_file() for f in (MODEL_FILE, CONFIG_FILE, STATE_FILE)):
+            return CheckpointError(f"checkpoint {path} has no {MANIFEST_FILE}: incomplete write?")
+        return CheckpointError(
+            f"{path} is not a checkpoint: it holds no {MANIFEST_FILE}, nor do the folders in it "
+            "(a checkpoint is a folder like <run>/checkpoints/best)"
+        )
+
+    def order(p: Path) -> tuple:  # the preferred link, the other links, then the newest
+        return 0 if p.name == prefer else 1 if p.name in LINKS else 2, -p.stat().st_mtime
+
+    found.sort(key=str, reverse=True)  # equal times: step_00000002 before step_00000001
+    found.sort(key=order)
+    kind = "folder"
+    if any(p.parent == path / "checkpoints" for p in found):
+        kind = "run folder"
+    elif path.name == "checkpoints":
+        kind = "checkpoints folder"
+    names = [str(p.relative_to(path)) for p in found]
+    more = f" and {len(names) - MAX_NAMED} more" if len(names) > MAX_NAMED else ""
+    return CheckpointError(
+        f"{path} is a {kind}, not a checkpoint; did you mean {found[0]}? "
+        f"It holds {', '.join(names[:MAX_NAMED])}{more}"
+    )
+
+
+def checkpoints_in(folder: Path) -> list[Path]:
+    """The checkpoint folders (holding a manifest) below ``folder``, at most ``SEARCH_DEPTH``
+    levels down (a run's ``checkpoints/best``, a pipeline's ``<stage>/run/checkpoints/best``);
+    hidden folders (unfinished writes) and zarr stores are not entered, and the search stops
+    after ``SEARCH_FOLDERS`` folders."""
+    found, level, seen = [], [folder], 0
+    for _ in range(SEARCH_DEPTH):
+        below = []
+        for parent in level:
+            try:
+                children = sorted(parent.iterdir())
+            except OSError:
+                continue
+            for child in children:
+                if child.name.startswith(".") or child.suffix == ".zarr" or not child.is_dir():
+                    continue
+                seen += 1
+                if seen > SEARCH_FOLDERS:
+                    return found
+                (found if (child / MANIFEST_FILE).is_file() else below).append(child)
+        level = below
+    return found
 
 
 def _read_json(file: Path):

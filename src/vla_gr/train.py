@@ -77,7 +77,7 @@ def _train(cfg: VLAGRConfig, resolved: DictConfig, dist: DistInfo) -> dict:
         logging.getLogger("vla_gr").setLevel(logging.WARNING)
     loaded = None
     if cfg.training.resume:  # verified before any work
-        loaded = ckpt.read_checkpoint(cfg.training.resume)
+        loaded = ckpt.read_checkpoint(cfg.training.resume, prefer="latest")
         check_resume_config(loaded, resolved)
         if loaded.state["step"] >= cfg.training.steps:
             return _already_finished(cfg, dist, loaded)
