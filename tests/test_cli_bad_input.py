@@ -115,3 +115,13 @@ def test_a_run_folder_as_the_checkpoint_names_its_checkpoints(tmp_path, capsys, 
     err = _one_or_two_lines(capsys.readouterr().err, command)
     assert f"{run} is a run folder, not a checkpoint; did you mean {run}/checkpoints/best?" in err
     assert "checkpoints/latest, checkpoints/step_00000002, checkpoints/step_00000001" in err
+
+
+def test_eval_given_the_episodes_file_as_env_episodes_says_which_key_it_reads(tmp_path, capsys):
+    path = save_episodes(tmp_path / "eps.jsonl", [sample_episode("val", 0)])
+    out = tmp_path / "out"
+    argv = ["eval", *DEBUG, "agent=expert", f"env.episodes={path}", f"output_dir={out}"]
+    assert main(argv) == 2  # not the split's episodes in its place
+    err = _one_or_two_lines(capsys.readouterr().err, "eval")
+    assert f"env.episodes={path}" in err and f"pass episodes={path}" in err
+    assert not out.exists()

@@ -106,6 +106,11 @@ def run_from_cli(config_name: str, overrides: Sequence[str]) -> int:
     from vla_gr.evaluation.report import table_row
 
     _, cfg, shipped = _compose(config_name, overrides)
+    if cfg.env.episodes and cfg.env.episodes != cfg.eval.episodes:  # else the split would run
+        raise UserError(
+            f"env.episodes={cfg.env.episodes}: vla-gr eval runs the episodes file of "
+            f"eval.episodes; pass episodes={cfg.env.episodes}"
+        )
     if shipped:
         sys.stdout.write(
             f"agent: the shipped checkpoint {SHIPPED_CHECKPOINT} (no agent= or checkpoint= "
