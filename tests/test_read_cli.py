@@ -131,6 +131,18 @@ def test_a_request_the_reader_refuses_is_one_line_and_exit_2(loads, capsys):
     assert err == "vla-gr read: error: request of 51 characters is longer than the 50 read"
 
 
+def test_a_request_longer_than_any_reader_reads_is_refused_before_any_load(loads, capsys):
+    from vla_gr.agent.reading import MAX_REQUEST_CHARS
+
+    assert main(["read", "chair " * 100]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (
+        f"vla-gr read: error: request of 599 characters is longer than the {MAX_REQUEST_CHARS} "
+        "read; say it in fewer words"
+    )
+    assert loads.paths == []  # no agent loaded: no loading output before the line
+
+
 @pytest.mark.parametrize(
     "argv, message",
     [

@@ -120,8 +120,9 @@ def _text(value) -> str:
 def run_from_cli(text: str, settings: Sequence[str] = ()) -> int:
     """``vla-gr read TEXT [checkpoint=PATH]``: print the reading; 0 when understood, 3 when
     not (2 on bad input, through :func:`~vla_gr.configs.command.run_command`)."""
-    if not isinstance(text, str):
-        raise UserError(f"a request must be text, got {type(text).__name__}")
+    from vla_gr.agent.reading import normalise_request
+
+    normalise_request(text)  # a request the reader refuses: before the agent loads
     options = parse_settings(settings)
     policy = load_reader(options["checkpoint"])
     reading = policy.read(text)
