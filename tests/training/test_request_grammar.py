@@ -63,3 +63,15 @@ def test_decoding_its_own_labels_gives_the_fields_it_was_made_from(requests):
             refused += not reading.understood
     assert right / acted >= 0.97, right / acted
     assert refused / refusals >= 0.97, refused / refusals
+
+
+def test_a_second_goal_is_any_object_landmarks_included(grammar):
+    """ "the chair and the table" is two goals even though a table is no goal to find."""
+    table = word_table()
+    seconds = set()
+    for r in grammar.batch(3000, seed=5):
+        if r.refuse == "two_goals":
+            words = [w for w, t in zip(r.words, r.tags) if t == "SECOND"]
+            named = table.name_in([table.repair(w) for w in words], "category")
+            seconds.add(named.name if named else None)
+    assert {"table", "cabinet"} <= seconds and set(GOAL_CATEGORIES) <= seconds

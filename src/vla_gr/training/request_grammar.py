@@ -503,7 +503,7 @@ class RequestGrammar:
 
     def _two_goals(self, rng, noun, colour, room, anchor) -> list:
         first = self._goal_phrase(rng, noun, colour, room, None)
-        second_goal = self._pick(rng, self.goal_categories)
+        second_goal = self._pick(rng, self.categories)  # a landmark too: "the chair & the table"
         second_colour = self._colour(rng, self._pick(rng, list(COLOUR_WORDS)))
         second = self._goal_phrase(
             rng,
