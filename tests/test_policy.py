@@ -48,8 +48,8 @@ def test_select_action_replans_exactly_every_n_action_steps():
     actions = [policy.select_action(_env_obs(t)) for t in range(10)]
     assert len(rec.histories) == 4  # replanned at t = 0, 3, 6, 9
     for t, a in enumerate(actions):
-        assert a.shape == (1, 3)
-        assert a[0, 0].item() == t // 3 and a[0, 1].item() == t % 3  # chunk t//3, index t%3
+        assert a.shape == (3,) and a.dtype == np.float32  # what env.step takes
+        assert a[0] == t // 3 and a[1] == t % 3  # chunk t//3, index t%3
     # Observation history (n_obs_steps=2) at each replanning step: (t - 1, t), o0 repeated.
     assert [h[0].tolist() for h in rec.histories] == [[0, 0], [2, 3], [5, 6], [8, 9]]
 
@@ -62,7 +62,7 @@ def test_reset_clears_queues():
     policy.select_action(_env_obs(1))
     policy.reset()
     a = policy.select_action(_env_obs(7))
-    assert len(rec.histories) == 2 and a[0, 0].item() == 1 and a[0, 1].item() == 0
+    assert len(rec.histories) == 2 and a[0] == 1 and a[1] == 0
     assert rec.histories[1][0].tolist() == [7, 7]  # history restarted from the new episode
 
 
@@ -70,10 +70,46 @@ def test_batched_select_action_and_chunk_shape():
     policy = tiny_policy(0, objective="flow_matching", sampler="euler")
     policy.eval()
     a = policy.select_action(_env_obs(0, batch=3))
-    assert a.shape == (3, 3) and not a.requires_grad
+    assert a.shape == (3, 3) and a.dtype == np.float32
     chunk = policy.predict_action_chunk(fake_batch(policy.config, 2))
     assert chunk.shape == (2, policy.config.horizon, 3)
     assert chunk.abs().max() <= 1.0 and not chunk.requires_grad
+
+
+def _row(t: int, env: int) -> dict:
+    """Env ``env``'s observation at its step ``t`` (pixels, pose and request differ per env)."""
+    obs = _env_obs(t)
+    rgb = (obs["rgb"].astype(np.int64) + 37 * env + np.arange(16)[:, None, None]) % 256
+    pose = np.array([0.1 * t, 0.2 * env, 0.05 * t], np.float32)
+    said = ["find the sofa", "find the bed"][env]
+    return {**obs, "rgb": rgb.astype(np.uint8), "pose": pose, "instruction": said}
+
+
+def test_a_batch_gives_each_env_its_lone_actions_and_a_done_env_restarts_alone():
+    policy = tiny_policy(0, horizon=6, n_action_steps=3).eval()
+
+    def lone(env: int, steps: range) -> np.ndarray:
+        policy.reset()
+        return np.stack([policy.select_action(_row(t - steps[0], env)) for t in steps])  # (T, 3)
+
+    # env 0: an episode of 5 rows (the last one ends it), a new episode from step 5; env 1: 9
+    expected = [np.concatenate([lone(0, range(4)), np.zeros((1, 3)), lone(0, range(5, 9))])]
+    expected.append(lone(1, range(9)))
+    sizes = []
+    predict = policy.predict_action_chunk
+    policy.predict_action_chunk = lambda h: sizes.append(len(h["instruction"])) or predict(h)
+    policy.reset()
+    got = []
+    for t in range(9):
+        rows = [_row(t if t < 5 else t - 5, 0), _row(t, 1)]
+        batch = {k: np.stack([r[k] for r in rows]) for k in ("rgb", "depth", "pose")}
+        batch["instruction"] = [r["instruction"] for r in rows]
+        got.append(policy.select_action(batch, done=np.array([t == 4, False])))  # (2, 3)
+    got = np.stack(got)  # (T, 2, 3)
+    for env in (0, 1):
+        np.testing.assert_allclose(got[:, env], expected[env], atol=1e-6)
+    # chunks: both envs at t = 0, 3; env 0 alone at its restart (5) and 8, env 1 alone at 6
+    assert sizes == [2, 2, 1, 1, 1]
 
 
 def test_action_normalisation_round_trip_and_use():

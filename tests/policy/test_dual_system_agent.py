@@ -114,7 +114,7 @@ def test_s2_runs_every_plan_every_steps_and_s1_every_step():
     s2_steps = []
     for t in range(8):
         action = model.select_action(_obs())
-        assert action.shape == (1, 3) and action.abs().max() <= 1.0
+        assert action.shape == (3,) and np.abs(action).max() <= 1.0
         timings = model.last_timings
         assert "s1" in timings
         if "s2" in timings:
@@ -129,6 +129,7 @@ def test_s2_runs_every_plan_every_steps_and_s1_every_step():
     model.select_action(_obs())
     assert len(ticks) == 4 and "s2" in model.last_timings
     assert model.predict_action_chunk(_obs()).shape == (1, 1, 3)
+    assert isinstance(model.predict_action_chunk(_obs()), torch.Tensor)
 
 
 def test_s1_acts_on_the_latest_plan_between_ticks():
@@ -144,9 +145,9 @@ def test_s1_acts_on_the_latest_plan_between_ticks():
     )
     system.navigator.plan = lambda obs, likelihood, *checks: next(plans)
     model.reset()
-    first = [model.select_action(_obs())[0].tolist() for _ in range(2)]
+    first = [model.select_action(_obs()).tolist() for _ in range(2)]
     assert first == [[0.0, 1.0, -1.0]] * 2  # the first plan's turn, held until the next tick
-    assert model.select_action(_obs())[0].tolist() == [0.0, 0.0, 1.0]  # the new plan: STOP
+    assert model.select_action(_obs()).tolist() == [0.0, 0.0, 1.0]  # the new plan: STOP
     assert system.max_goal_confidence == 1.0
 
 
@@ -194,7 +195,7 @@ def test_learned_s1_reads_the_latest_plan_and_s2_runs_every_plan_every_steps():
         pose = np.array([0.2 * t, 0.05 * t, 0.1 * t])
         previous = system.plan
         action = model.select_action(_obs(pose))
-        assert action.shape == (1, 3) and action.abs().max() <= 1.0
+        assert action.shape == (3,) and np.abs(action).max() <= 1.0
         if t % 3 == 0:
             assert system.plan is not previous
             made.append(system.plan)
@@ -210,12 +211,55 @@ def test_learned_s1_reads_the_latest_plan_and_s2_runs_every_plan_every_steps():
     assert confidence == pytest.approx([0.1 * (t // 3) for t in range(10)])
 
 
-def test_the_dual_system_runs_at_batch_one():
+def _batch(*rows: dict) -> dict:
+    """A vector env's observation of ``rows`` (one per env)."""
+    batch = {k: np.stack([r[k] for r in rows]) for k in rows[0] if k != "instruction"}
+    return batch | {"instruction": tuple(r["instruction"] for r in rows)}
+
+
+def test_a_batch_keeps_one_dual_system_per_env_and_a_done_env_alone_starts_again():
     model = _model()
-    batch = {k: np.stack([v, v]) for k, v in _obs().items() if k != "instruction"}
-    batch["instruction"] = ["find the chair"] * 2
-    with pytest.raises(ValueError, match="batch 1"):
-        model.select_action(batch)
+    said = ["find the chair", "qwzx plorf"]  # env 1's request is not understood
+    lone = [model.select_action({**_obs(), "instruction": said[0]}).tolist() for _ in range(3)]
+    model.reset()
+    batch = _batch(*({**_obs(), "instruction": s} for s in said))
+    steps, actions = [], []
+    for t in range(6):
+        actions.append(model.select_action(batch, done=[t == 3, False]).tolist())  # (2, 3)
+        steps.append([system.steps for system in model.dual_systems])
+    # env 0's row at step 3 ended its episode: no action, its state alone starts again
+    assert steps == [[1, 1], [2, 2], [3, 3], [0, 4], [1, 5], [2, 6]]
+    assert [a[0] for a in actions] == lone + [[0.0, 0.0, 0.0]] + lone[:2]
+    assert all(a[1] == [0.0, 0.0, 0.0] for a in actions)  # env 1 does not act on its request
+    first, second = model.dual_systems
+    assert first.declared_outcome is None and first.reading.fields()["category"] == "chair"
+    assert second.declared_outcome == "not_understood" and first.perception is model.perception
+    assert second.perception is not first.perception
+    model.reset()
+    assert model.dual_systems == (first,) and first.steps == 0  # env 0's system, restarted
+
+
+def test_the_number_of_envs_holds_until_reset_and_inputs_are_checked():
+    model = _model()
+    model.select_action(_batch(_obs(), _obs()))
+    with pytest.raises(ValueError, match=r"acts for 2 env\(s\) since its last reset"):
+        model.select_action(_obs())
+    with pytest.raises(ValueError, match="one flag per env"):
+        model.select_action(_batch(_obs(), _obs()), done=[True])
+    with pytest.raises(ValueError, match=r"obs\['pose'\] of shape \(1, 3\)"):
+        model.select_action(_batch(_obs(), _obs()) | {"pose": np.zeros((1, 3), np.float32)})
+    model.reset()
+    assert model.select_action(_obs()).shape == (3,)
+    with pytest.raises(ValueError, match=r"\(H, W, 3\) for one env or \(B, H, W, 3\)"):
+        model.select_action({**_obs(), "rgb": np.zeros((32, 3), np.uint8)})
+
+
+def test_a_perception_that_reads_one_envs_ground_truth_drives_one_env():
+    model = _model()
+    model.use_perception(model.learned_perception().gated(lambda obs: np.ones((32, 32), bool)))
+    with pytest.raises(ValueError, match="gated perception .* drives one env"):
+        model.select_action(_batch(_obs(), _obs()))
+    assert model.select_action(_obs()).shape == (3,)  # a failed call fixed no number of envs
 
 
 def test_the_factory_builds_one_class_per_agent():
@@ -444,7 +488,7 @@ def test_a_request_not_understood_is_not_acted_on_and_declared():
     model.reset()
     for _ in range(4):  # however often it is asked, no motion and no STOP
         action = model.select_action({**_obs(), "instruction": "find the piano"})
-        assert torch.equal(action, torch.zeros(1, 3))
+        assert action.tolist() == [0.0, 0.0, 0.0]
     assert model.declared_outcome == "not_understood" and model.reading is refused
     assert planned == []  # S2 never planned
     model.reset()

@@ -194,7 +194,7 @@ class EvalAgent:
 
 
 class PolicyAgent(EvalAgent):
-    """A navigation policy (``reset()``, ``select_action(obs) -> (1, A)``,
+    """A navigation policy (``reset()``, ``select_action(obs) -> (A,)``,
     ``episode_summary()``, ``last_timings``, ``declared_outcome``, ``reading``) as an eval
     agent.
 

@@ -244,7 +244,7 @@ def rollout_rows(
     (:func:`run_episode`).
 
     ``policy`` has the interface of :class:`vla_gr.policy.NavigationPolicy` (``reset()``,
-    ``select_action(obs) -> (1, A)``, ``last_timings``, ``episode_summary()``); an ``nn.Module`` is
+    ``select_action(obs) -> (A,)``, ``last_timings``, ``episode_summary()``); an ``nn.Module`` is
     moved to ``device`` and put in eval mode for the rollout (its train/eval mode is restored
     afterwards). ``env_kwargs`` go to ``gymnasium.make("VLAGR/ObjectNav-v0", ...)``
     (``max_episode_steps`` is the step budget). Episode ``k`` is

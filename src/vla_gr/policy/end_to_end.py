@@ -16,6 +16,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Mapping
 
+import numpy as np
 import torch
 from torch import nn
 from torch.utils.checkpoint import checkpoint
@@ -116,20 +117,15 @@ class EndToEndPolicy(NavigationPolicy):
         chunk = self.head.get_action(context)  # (B, H, A), sampler and steps from model.head
         return self.unnormalize_action(chunk).clamp(-1.0, 1.0)  # (B, H, A)
 
-    def reset(self) -> None:
-        """Forget the observation history and the queued actions (call at episode start)."""
-        self._obs_queue: deque[dict] = deque(maxlen=self.config.n_obs_steps)
-        self._action_queue: deque[torch.Tensor] = deque(maxlen=self.config.n_action_steps)
+    def _new_env_state(self) -> _History:
+        """One env's observation history and action queue."""
+        return _History(self.config.n_obs_steps, self.config.n_action_steps)
 
-    @torch.no_grad()
-    def select_action(self, obs: Mapping) -> torch.Tensor:
-        """One action ``(B, A)`` for the current environment observation.
-
-        ``obs`` is an environment observation, single (``rgb`` (H, W, 3)) or batched
-        (``rgb`` (B, H, W, 3), ``depth`` (B, H, W, 1), ``pose`` (B, 3), ``instruction``
-        list), numpy or torch. The last ``n_obs_steps`` observations are kept (the first
-        one repeated after ``reset``), and a chunk is predicted only when the action
-        queue is empty. Timeline for ``n_obs_steps=2, horizon=16, n_action_steps=8``::
+    def _act(self, obs: Mapping, envs: np.ndarray) -> np.ndarray:
+        """One action per env of ``envs`` (b,) -> ``(b, A)``: each env's last ``n_obs_steps``
+        observations are kept (its first one repeated after its reset), and a chunk is
+        predicted, for the envs whose action queue is empty, in one batch. Timeline of one env
+        for ``n_obs_steps=2, horizon=16, n_action_steps=8``::
 
             env step t      :  0   1   2  ...  7 |  8   9  ... 15 | 16 ...
             observations    : o0 o0,o1 ...       | o7,o8          | o15,o16
@@ -138,18 +134,44 @@ class EndToEndPolicy(NavigationPolicy):
 
         i.e. a new chunk ``c_t`` (``horizon`` actions from step ``t``) is computed at
         ``t = 0, n_action_steps, 2 * n_action_steps, ...``; only its first
-        ``n_action_steps`` actions are executed, the rest is discarded.
+        ``n_action_steps`` actions are executed, the rest is discarded. The head samples
+        from torch's global generator: a batch replays lone envs' actions only for a
+        deterministic head.
         """
-        frame = env_obs_to_frame(obs, device=self.device)
-        if not self._obs_queue:
-            self._obs_queue.extend([frame] * self.config.n_obs_steps)
-        else:
-            self._obs_queue.append(frame)
-        if not self._action_queue:
+        frame = env_obs_to_frame(obs, device=self.device)  # rgb (B, 3, H, W), ...
+        states = [self._env_states[int(i)] for i in envs]
+        for i, state in zip(envs, states):
+            state.observe({k: frame[k][int(i)] for k in _OBS_KEYS})  # rgb (3, H, W), ...
+        due = [j for j, state in enumerate(states) if not state.actions]
+        if due:
             history = {
-                k: torch.stack([f[k] for f in self._obs_queue], dim=1) for k in _OBS_KEYS
-            }  # each (B, T, ...)
-            history["instruction"] = frame["instruction"]
-            chunk = self.predict_action_chunk(history)  # (B, H, A)
-            self._action_queue.extend(chunk[:, : self.config.n_action_steps].unbind(1))
-        return self._action_queue.popleft()  # (B, A)
+                k: torch.stack([torch.stack(list(states[j].frames[k])) for j in due])
+                for k in _OBS_KEYS
+            }  # rgb (b', T, 3, H, W), depth (b', T, 1, H, W), pose (b', T, 3)
+            history["instruction"] = [frame["instruction"][int(envs[j])] for j in due]
+            chunk = self.predict_action_chunk(history)  # (b', H, A)
+            for j, actions in zip(due, chunk[:, : self.config.n_action_steps]):  # (n, A)
+                states[j].actions.extend(actions.unbind(0))
+        actions = torch.stack([state.actions.popleft() for state in states])  # (b, A)
+        return actions.float().cpu().numpy()  # (b, A)
+
+
+class _History:
+    """One env's last ``n_obs`` frames (per key) and its queued actions (each ``(A,)``)."""
+
+    def __init__(self, n_obs: int, n_actions: int) -> None:
+        self.frames = {k: deque(maxlen=n_obs) for k in _OBS_KEYS}
+        self.actions: deque[torch.Tensor] = deque(maxlen=n_actions)
+
+    def reset(self) -> None:
+        for frames in self.frames.values():
+            frames.clear()
+        self.actions.clear()
+
+    def observe(self, frame: Mapping) -> None:
+        """Append one frame (the first of an episode fills the history)."""
+        for k, frames in self.frames.items():
+            if frames:
+                frames.append(frame[k])
+            else:
+                frames.extend([frame[k]] * frames.maxlen)

@@ -1,10 +1,14 @@
 """``VLAGRPolicy``: the VLA-GR agent, a dual system (``model.agent=dual_system``).
 
-One control step (batch 1)::
+One control step of one env::
 
     select_action(obs) -> GroundedDualSystem.step
         every plan_every steps: perception.perceive(obs) -> Percept -> Navigator.plan -> plan
         every step:             S1 follower (pure pursuit or the learned S1) -> (v, w, stop)
+
+A vector env's batch runs one ``GroundedDualSystem`` per env (its own map, plan, reading and
+follower; the networks are shared), each stepped on its env's row (see
+:meth:`NavigationPolicy.select_action` for the contract and autoresets).
 
 Training (``forward``) fits S2's language-grounded goal head (``model.goal_head``,
 :mod:`vla_gr.agent.perception`) on the last observation frame of each window against
@@ -33,11 +37,9 @@ from vla_gr.agent.perception import (
 from vla_gr.agent.perception.percept import LearnedPerception, Perception
 from vla_gr.agent.reading import InstructionReader, Reading
 from vla_gr.configs.model_schema import ModelConfig
-from vla_gr.policy.base import NavigationPolicy
+from vla_gr.policy.base import NavigationPolicy, env_row
 
 __all__ = ["VLAGRPolicy"]
-
-_OBS_KEYS = ("rgb", "depth", "pose")
 
 
 class VLAGRPolicy(NavigationPolicy):
@@ -71,8 +73,20 @@ class VLAGRPolicy(NavigationPolicy):
 
     def use_perception(self, perception: Perception) -> None:
         """Drive with ``perception`` as S2's (the privileged ablations pass the true mask or
-        a gated copy of :meth:`learned_perception`); a new episode starts."""
-        self.dual_system = GroundedDualSystem.from_model_config(perception, self.config, self.s1)
+        a gated copy of :meth:`learned_perception`); a new episode starts. The envs of a batch
+        after the first drive with ``perception.fork()``."""
+        self._env_states = [GroundedDualSystem.from_model_config(perception, self.config, self.s1)]
+        self._num_envs = None
+
+    @property
+    def dual_system(self) -> GroundedDualSystem:
+        """Env 0's dual system (the only one when a single env runs)."""
+        return self._env_states[0]
+
+    @property
+    def dual_systems(self) -> tuple[GroundedDualSystem, ...]:
+        """One dual system per env of the current run, env 0 first."""
+        return tuple(self._env_states)
 
     # ------------------------------------------------------------------ training
     def forward(self, batch: Mapping) -> dict[str, torch.Tensor]:
@@ -150,24 +164,27 @@ class VLAGRPolicy(NavigationPolicy):
     # ------------------------------------------------------------------ inference
     @property
     def perception(self) -> Perception:
-        """S2's perception this agent drives with."""
+        """S2's perception this agent drives with (env 0's)."""
         return self.dual_system.perception
 
     @property
     def last_timings(self) -> dict[str, float]:
-        """Seconds of the last step's parts: ``s1``; on S2 ticks ``s2``, ``s2_perception``,
-        ``s2_navigator``."""
+        """Seconds of env 0's last step's parts: ``s1``; on S2 ticks ``s2``,
+        ``s2_perception``, ``s2_navigator``."""
         return self.dual_system.last_timings
 
     def episode_summary(self) -> dict:
+        """Env 0's (:attr:`dual_systems` holds every env's)."""
         return self.dual_system.episode_summary()
 
     @property
     def declared_outcome(self) -> str | None:
+        """Env 0's (:attr:`dual_systems` holds every env's)."""
         return self.dual_system.declared_outcome
 
     @property
     def reading(self) -> Reading | None:
+        """Env 0's (:attr:`dual_systems` holds every env's)."""
         return self.dual_system.reading
 
     def read(self, request: str) -> Reading:
@@ -179,34 +196,21 @@ class VLAGRPolicy(NavigationPolicy):
 
         return template_reading(request, self.config)[0]
 
-    @torch.no_grad()
-    def select_action(self, obs: Mapping) -> torch.Tensor:
-        """One control step of the dual system -> action ``(1, A)`` (S2 every ``plan_every``
-        steps, S1 every step; see :mod:`vla_gr.agent.dual_system`). ``obs`` is one env
-        observation, optionally with a leading batch of one."""
-        action = self.dual_system.step(_single_observation(obs))  # (A,)
-        return torch.from_numpy(action).to(self.device)[None]  # (1, A)
+    def _new_env_state(self) -> GroundedDualSystem:
+        """Another env's dual system: the same networks, a perception of its own."""
+        return GroundedDualSystem.from_model_config(self.perception.fork(), self.config, self.s1)
+
+    def _act(self, obs: Mapping, envs: np.ndarray) -> np.ndarray:
+        """Each env of ``envs`` (b,) steps its own dual system on its row -> ``(b, A)``."""
+        batched = np.ndim(obs["rgb"]) == 4
+        rows = [env_row(obs, int(i)) if batched else dict(obs) for i in envs]
+        steps = [self._env_states[int(i)].step(row) for i, row in zip(envs, rows)]  # b x (A,)
+        return np.stack(steps).astype(np.float32)  # (b, A)
 
     @torch.no_grad()
     def predict_action_chunk(self, obs: Mapping) -> torch.Tensor:
         """The dual system is stateful (its map) and its S1 follower decides one step at a
-        time: one environment observation in, a chunk of one ``(1, 1, A)`` out."""
-        return self.select_action(obs)[:, None]  # (1, 1, A)
-
-    def reset(self) -> None:
-        """New episode: empty map, no plan, the instruction read again."""
-        self.dual_system.reset()
-
-
-def _single_observation(obs: Mapping) -> dict:
-    """One env observation (``rgb`` (H, W, 3), ...) from one with an optional batch of 1."""
-    rgb = np.asarray(obs["rgb"])
-    if rgb.ndim == 3:
-        return dict(obs)
-    if rgb.ndim != 4 or rgb.shape[0] != 1:
-        raise ValueError(
-            f"the dual system runs at batch 1; got obs['rgb'] of shape {tuple(rgb.shape)}"
-        )
-    single = {k: np.asarray(obs[k])[0] for k in _OBS_KEYS}
-    single["instruction"] = as_instructions(obs["instruction"], "obs['instruction']")[0]
-    return single
+        time: environment observations in, a chunk of one ``(B, 1, A)`` out (B = 1 for one
+        env's observation)."""
+        action = torch.from_numpy(self.select_action(obs)).to(self.device)  # (B, A) or (A,)
+        return action.reshape(-1, 1, self.config.action_dim)  # (B, 1, A)

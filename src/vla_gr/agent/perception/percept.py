@@ -69,6 +69,10 @@ class Perception(Protocol):
         """One S2 tick on one environment observation (``rgb`` (H, W, 3), ``depth``
         (H, W, 1), ``pose`` (3,), ``instruction``)."""
 
+    def fork(self) -> Perception:
+        """The same perception with an episode state of its own, for another env of a batch
+        (ValueError for one that reads a single env's ground truth)."""
+
 
 #: ``obs -> (H, W) bool``: pixels a gated perception keeps in its goal likelihood.
 PixelGate = Callable[[Mapping], np.ndarray]
@@ -121,6 +125,15 @@ class LearnedPerception:
         """The same networks, with the goal likelihood multiplied by ``gate(obs)``."""
         copy = _copy.copy(self)
         copy.gate, copy._episode = gate, None
+        return copy
+
+    def fork(self) -> LearnedPerception:
+        """The same networks with a reading of their own (ValueError when gated: a gate reads
+        one env's ground truth)."""
+        if self.gate is not None:
+            raise ValueError("a gated perception reads one env's ground truth: it drives one env")
+        copy = _copy.copy(self)
+        copy._episode = None
         return copy
 
     @property
@@ -226,6 +239,9 @@ class TrueMaskPerception:
     def read(self, instruction: str) -> None:
         """It reads no request: the true goal is the env's."""
         return None
+
+    def fork(self) -> TrueMaskPerception:
+        raise ValueError("the true-mask perception reads one env's goal: it drives one env")
 
     def perceive(self, obs: Mapping) -> Percept:
         goal = int(self.env.unwrapped.goal.instance_id)
