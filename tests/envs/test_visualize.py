@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from tests.video_probe import probe
 from vla_gr.envs.scene import House, ObjectInstance, Room
 from vla_gr.envs.visualize import (
     CATEGORY_COLORS,
@@ -185,22 +186,13 @@ def _decode(path, w: int, h: int) -> np.ndarray:
     return np.frombuffer(raw, np.uint8).reshape(-1, h, w, 3)
 
 
-def _probe(path) -> dict:
-    out = subprocess.run(
-        ["ffprobe", "-v", "error", "-select_streams", "v:0", "-count_frames", "-show_entries",
-         "stream=codec_name,pix_fmt,width,height,nb_read_frames", "-of", "default=nw=1", str(path)],
-        capture_output=True, text=True, check=True,
-    ).stdout  # fmt: skip
-    return dict(line.split("=", 1) for line in out.split())
-
-
 @pytest.mark.skipif(shutil.which("ffmpeg") is None, reason="no ffmpeg (make setup installs it)")
 def test_mp4_is_h264_yuv420p_with_every_frame(tmp_path):
     rec = _moving_frames(7, 48, lines=1, caption=lambda k: [f"step {k}"])
     odd = [f[:-1, :-1] for f in rec.frames]  # odd sizes are padded to even ones
     path = save_mp4(tmp_path / "a" / "ep.mp4", odd, fps=5)
     h, w = odd[0].shape[:2]
-    info = _probe(path)
+    info = probe(path)
     assert info["codec_name"] == "h264" and info["pix_fmt"] == "yuv420p"
     assert (int(info["width"]), int(info["height"])) == (w + w % 2, h + h % 2)
     assert int(info["nb_read_frames"]) == 7

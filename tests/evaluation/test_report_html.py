@@ -6,12 +6,12 @@ from __future__ import annotations
 import json
 import math
 import shutil
-import subprocess
 
 import numpy as np
 import pytest
 
 from tests.chromium import CHROMIUM, Chromium
+from tests.video_probe import probe
 from vla_gr.configs import load_config
 from vla_gr.evaluate import evaluate, expand_aliases
 from vla_gr.evaluation.report import html_page
@@ -62,15 +62,6 @@ def run(tmp_path_factory):
     return out, cfg
 
 
-def _frames(path) -> int:
-    out = subprocess.run(
-        ["ffprobe", "-v", "error", "-count_frames", "-select_streams", "v:0", "-show_entries",
-         "stream=nb_read_frames", "-of", "csv=p=0", str(path)],
-        capture_output=True, text=True, check=True,
-    ).stdout  # fmt: skip
-    return int(out.strip())
-
-
 @needs_ffmpeg
 def test_every_episode_has_a_video_of_every_replayed_step(run):
     out, cfg = run
@@ -86,7 +77,7 @@ def test_every_episode_has_a_video_of_every_replayed_step(run):
         assert f"![top-down]({video.stem}_topdown.png)" in md
         # steps 0, STRIDE, 2 STRIDE, ..., the last one; then the last frame held
         replayed = 1 + math.ceil(len(row["actions"]) / STRIDE)
-        assert _frames(video) == replayed + round(END_HOLD_SECONDS * fps) - 1
+        assert int(probe(video)["nb_read_frames"]) == replayed + round(END_HOLD_SECONDS * fps) - 1
 
 
 @needs_ffmpeg
