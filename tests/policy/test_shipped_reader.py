@@ -34,6 +34,8 @@ REFUSED = [
     ("the chair that isn't red", "isn't"),
     ("go to the red chair and then the sofa", "one goal at a time"),
     ("take me to the pink sofa", "'pink'"),
+    ("drive to the khaki bed", "'khaki'"),
+    ("lol ok", "I can find"),
 ]
 
 

@@ -60,6 +60,23 @@ def test_known_words_short_words_and_far_words_are_left_alone(table, word):
     assert table.repair(word) == word
 
 
+@pytest.mark.parametrize(("typed", "meant"), [("bde", "bed"), ("hal", "hall"), ("rde", "red")])
+def test_a_three_letter_word_is_repaired_through_a_swap_or_a_lost_letter(table, typed, meant):
+    assert table.repair(typed) == meant
+
+
+@pytest.mark.parametrize("word", ["lol", "omg", "idk", "bwd", "lox"])
+def test_three_letter_mistypes_and_chat_words_are_left_alone(table, word):
+    # "lol" is a mistype of "loo", "bwd" of "bed", "lox" an added letter to "lo"... : at
+    # three letters such slips turn most strings into some word, so none is repaired
+    assert table.repair(word) == word
+
+
+@pytest.mark.parametrize("word", ["khaki", "russet", "golden", "beige", "teal"])
+def test_colours_wordnet_knows_beyond_the_eight_are_other_colours(table, word):
+    assert word in table.other_colours and table.look_up([word], "colour") is None
+
+
 def test_features_mark_category_room_colour_relation_and_negation_words(table):
     from vla_gr.agent.reading.vocabulary import FEATURES
 

