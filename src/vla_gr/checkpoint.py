@@ -14,6 +14,11 @@ A checkpoint is a folder ``checkpoints/step_XXXXXXXX/`` holding
 - ``training_state.safetensors``  raw weights, EMA, optimiser moments, torch RNG states;
 - ``manifest.json``         format, version and the SHA-256 and size of every file.
 
+A *pretrained folder* (``NavigationPolicy.save_pretrained``, huggingface_hub's
+``PyTorchModelHubMixin`` layout) is the same format with ``config.json`` (the ``model`` section
+alone) in place of ``config.yaml`` and no training state: ``model.safetensors``,
+``config.json``, ``README.md`` (a model card) and ``manifest.json``.
+
 It is written to ``checkpoints/.tmp-*`` and renamed (atomic on POSIX), then the
 ``latest`` / ``best`` symlinks are swapped with ``os.replace`` (atomic too). A kill at
 any moment therefore leaves every link pointing at a complete folder; leftovers of an
@@ -29,7 +34,7 @@ import logging
 import os
 import random
 import shutil
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -46,6 +51,7 @@ FORMAT_NAME = "vla_gr.checkpoint"
 FORMAT_VERSION = 1
 MODEL_FILE = "model.safetensors"
 CONFIG_FILE = "config.yaml"
+HUB_CONFIG_FILE = "config.json"  # a pretrained folder's config: the model section
 STATE_FILE = "trainer_state.json"
 TRAINING_FILE = "training_state.safetensors"
 MANIFEST_FILE = "manifest.json"
@@ -69,8 +75,9 @@ class LoadedCheckpoint:
     path: Path
     model: dict[str, torch.Tensor]
     state: dict
-    config_yaml: str
+    config_yaml: str  # the run config; a pretrained folder's config.json as {"model": ...}
     training: dict[str, torch.Tensor] = field(default_factory=dict)
+    config_file: str = CONFIG_FILE  # the file the config came from
 
     def group(self, prefix: str) -> dict[str, torch.Tensor]:
         """Entries of ``training_state.safetensors`` under ``prefix.`` (prefix stripped)."""
@@ -183,8 +190,11 @@ def _default_file_mode() -> int:
     return 0o666 & ~mask
 
 
-def _save_tensors(path: Path, tensors: Mapping[str, torch.Tensor]) -> None:
-    save_file({k: v.detach().cpu().contiguous() for k, v in tensors.items()}, str(path))
+def _save_tensors(
+    path: Path, tensors: Mapping[str, torch.Tensor], metadata: dict[str, str] | None = None
+) -> None:
+    tensors = {k: v.detach().cpu().contiguous() for k, v in tensors.items()}
+    save_file(tensors, str(path), metadata=metadata)
     os.chmod(path, _default_file_mode())  # safetensors writes 0600; match the other files
     with open(path, "rb") as f:
         os.fsync(f.fileno())
@@ -196,6 +206,62 @@ def _atomic_symlink(target_name: str, link: Path) -> None:
         tmp.unlink()
     os.symlink(target_name, tmp)
     os.replace(tmp, link)
+
+
+def save_folder(dst: str | Path, fill: Callable[[Path], None], step: int | None = None) -> Path:
+    """Write checkpoint folder ``dst`` whole: ``fill(staging)`` writes its files into
+    ``.tmp-<name>-<pid>`` beside it, ``manifest.json`` (with ``step`` when given) is written
+    last and the staging folder is renamed ``dst``. An existing checkpoint or empty folder
+    ``dst`` is replaced; any other existing path is refused."""
+    dst = Path(dst)
+    if dst.is_symlink() or (dst.exists() and not _replaceable(dst)):
+        raise CheckpointError(
+            f"{dst} exists and is not a checkpoint folder; choose another folder or remove it"
+        )
+    root = dst.parent
+    root.mkdir(parents=True, exist_ok=True)
+    tmp = root / f".tmp-{dst.name}-{os.getpid()}"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir()
+    try:
+        fill(tmp)
+        manifest = {"format": FORMAT_NAME, "format_version": FORMAT_VERSION}
+        if step is not None:
+            manifest["step"] = int(step)
+        manifest["files"] = {
+            p.name: {"sha256": sha256_file(p), "bytes": p.stat().st_size}
+            for p in sorted(tmp.iterdir())
+        }
+        _write_bytes(tmp / MANIFEST_FILE, json.dumps(manifest, indent=1).encode())  # last
+        _fsync_dir(tmp)
+    except Exception:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    if dst.exists():  # saved again (the same step): move the old copy aside first
+        old = root / f".tmp-old-{dst.name}-{os.getpid()}"
+        os.rename(dst, old)
+        os.rename(tmp, dst)
+        shutil.rmtree(old)
+    else:
+        os.rename(tmp, dst)
+    _fsync_dir(root)
+    return dst
+
+
+def _replaceable(folder: Path) -> bool:
+    """Whether ``save_folder`` may replace existing ``folder``: a checkpoint or empty."""
+    return folder.is_dir() and ((folder / MANIFEST_FILE).is_file() or not any(folder.iterdir()))
+
+
+def write_pretrained_files(
+    folder: Path, model_tensors: Mapping[str, torch.Tensor], model_config: Mapping
+) -> None:
+    """A pretrained folder's own files in ``folder``: ``model.safetensors`` (with the
+    ``{"format": "pt"}`` metadata of PyTorch's safetensors files) and ``config.json`` (the
+    model section, every key)."""
+    _save_tensors(folder / MODEL_FILE, model_tensors, metadata={"format": "pt"})
+    _write_bytes(folder / HUB_CONFIG_FILE, json.dumps(dict(model_config), indent=2).encode())
 
 
 def save_checkpoint(
@@ -214,36 +280,17 @@ def save_checkpoint(
         if link not in LINKS:
             raise ValueError(f"link {link!r} is not valid; choose from {list(LINKS)}")
     name = f"step_{step:08d}"
-    final = root / name
-    tmp = root / f".tmp-{name}-{os.getpid()}"
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    tmp.mkdir()
-    files = {MODEL_FILE: model_tensors}
-    if training_tensors:
-        files[TRAINING_FILE] = training_tensors
-    for fname, tensors in files.items():
-        _save_tensors(tmp / fname, tensors)
-    _write_bytes(tmp / CONFIG_FILE, config_yaml.encode())
-    _write_bytes(tmp / STATE_FILE, json.dumps(dict(state), indent=1, sort_keys=True).encode())
-    manifest = {
-        "format": FORMAT_NAME,
-        "format_version": FORMAT_VERSION,
-        "step": int(step),
-        "files": {
-            p.name: {"sha256": sha256_file(p), "bytes": p.stat().st_size}
-            for p in sorted(tmp.iterdir())
-        },
-    }
-    _write_bytes(tmp / MANIFEST_FILE, json.dumps(manifest, indent=1).encode())  # written last
-    _fsync_dir(tmp)
-    if final.exists():  # the same step saved again: move the old copy aside first
-        old = root / f".tmp-old-{name}-{os.getpid()}"
-        os.rename(final, old)
-        os.rename(tmp, final)
-        shutil.rmtree(old)
-    else:
-        os.rename(tmp, final)
+
+    def fill(tmp: Path) -> None:
+        files = {MODEL_FILE: model_tensors}
+        if training_tensors:
+            files[TRAINING_FILE] = training_tensors
+        for fname, tensors in files.items():
+            _save_tensors(tmp / fname, tensors)
+        _write_bytes(tmp / CONFIG_FILE, config_yaml.encode())
+        _write_bytes(tmp / STATE_FILE, json.dumps(dict(state), indent=1, sort_keys=True).encode())
+
+    final = save_folder(root / name, fill, step=step)
     for link in links:
         _atomic_symlink(name, root / link)
     _fsync_dir(root)
@@ -275,7 +322,8 @@ def prune_checkpoints(checkpoints_dir: str | Path, keep: int) -> list[Path]:
 def read_checkpoint(
     path: str | Path, verify: bool = True, prefer: str = "best"
 ) -> LoadedCheckpoint:
-    """Read and verify a checkpoint folder (or a ``latest``/``best`` link to one).
+    """Read and verify a checkpoint folder (or a ``latest``/``best`` link to one) or a
+    pretrained folder (``config.json``: its config is ``{"model": <config.json>}``).
 
     A folder that holds checkpoints (a run, its ``checkpoints/``, a pipeline's stage) is
     refused naming them and suggesting one (a ``prefer`` link first: ``best`` to run an agent,
@@ -296,7 +344,9 @@ def read_checkpoint(
             f"checkpoint {path}: format_version {manifest.get('format_version')} is newer "
             f"than this library reads ({FORMAT_VERSION})"
         )
-    for fname in (MODEL_FILE, CONFIG_FILE, STATE_FILE):
+    config_file = _config_file(path, manifest["files"])
+    required = [MODEL_FILE, config_file] + ([STATE_FILE] if config_file == CONFIG_FILE else [])
+    for fname in required:
         if fname not in manifest["files"]:
             raise CheckpointError(f"checkpoint {path}: manifest lists no {fname}")
     for fname, meta in manifest["files"].items():
@@ -313,13 +363,29 @@ def read_checkpoint(
     training = {}
     if (path / TRAINING_FILE).is_file():
         training = _parse(path, TRAINING_FILE, _read_tensors)
+    state = _parse(path, STATE_FILE, _read_json) if STATE_FILE in manifest["files"] else {}
+    read_config = _read_yaml_text if config_file == CONFIG_FILE else _read_model_json
     return LoadedCheckpoint(
         path=path,
         model=_parse(path, MODEL_FILE, _read_tensors),
-        state=_parse(path, STATE_FILE, _read_json),
-        config_yaml=_parse(path, CONFIG_FILE, _read_yaml_text),
+        state=state,
+        config_yaml=_parse(path, config_file, read_config),
         training=training,
+        config_file=config_file,
     )
+
+
+def _config_file(path: Path, files: Mapping) -> str:
+    """The config a manifest lists: ``config.yaml`` (training) or ``config.json`` (pretrained);
+    CheckpointError when it lists both or none."""
+    listed = [f for f in (CONFIG_FILE, HUB_CONFIG_FILE) if f in files]
+    if len(listed) != 1:
+        what = "both" if listed else "neither of"
+        raise CheckpointError(
+            f"checkpoint {path}: manifest lists {what} {CONFIG_FILE} (a training checkpoint) "
+            f"and {HUB_CONFIG_FILE} (a pretrained folder); a checkpoint has one config"
+        )
+    return listed[0]
 
 
 def _not_a_checkpoint(path: Path, prefer: str) -> CheckpointError:
@@ -328,7 +394,9 @@ def _not_a_checkpoint(path: Path, prefer: str) -> CheckpointError:
     it holds a checkpoint's files; else what a checkpoint looks like."""
     found = checkpoints_in(path)
     if not found:
-        if any((path / f).is_file() for f in (MODEL_FILE, CONFIG_FILE, STATE_FILE)):
+        if any(
+            (path / f).is_file() for f in (MODEL_FILE, CONFIG_FILE, HUB_CONFIG_FILE, STATE_FILE)
+        ):
             return CheckpointError(f"checkpoint {path} has no {MANIFEST_FILE}: incomplete write?")
         return CheckpointError(
             f"{path} is not a checkpoint: it holds no {MANIFEST_FILE}, nor do the folders in it "
@@ -383,6 +451,14 @@ def _read_json(file: Path):
 
 def _read_tensors(file: Path) -> dict[str, torch.Tensor]:
     return load_file(str(file))
+
+
+def _read_model_json(file: Path) -> str:
+    """A pretrained folder's ``config.json`` (the model section) as a run config's YAML."""
+    model = json.loads(file.read_text())
+    if not isinstance(model, dict):
+        raise ValueError("not a JSON object")
+    return yaml.safe_dump({"model": model}, sort_keys=False)
 
 
 def _read_yaml_text(file: Path) -> str:

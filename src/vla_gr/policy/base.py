@@ -1,11 +1,12 @@
 """What every navigation policy shares: min-max normalisers kept as buffers (they travel
-with the weights), the device it runs on, ``from_pretrained`` through the factory, the acting
+with the weights), the device it runs on, huggingface_hub's ``save_pretrained`` /
+``from_pretrained`` (:mod:`vla_gr.policy.hub`, loading through the factory), the acting
 contract (``select_action`` for one env or a vector env, one state per env) and the
 LeRobot-shaped interface each agent class fills in (see DESIGN.md "Policy interface")."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 
 import numpy as np
 import torch
@@ -13,12 +14,17 @@ from torch import nn
 
 from vla_gr.agent.observations import as_instructions
 from vla_gr.configs.model_schema import ModelConfig
+from vla_gr.policy.hub import PolicyHubMixin
 
 __all__ = ["NavigationPolicy", "done_mask", "env_row", "observation_count"]
 
 
-class NavigationPolicy(nn.Module):
+class NavigationPolicy(nn.Module, PolicyHubMixin):
     """Base of the agent classes; ``config`` is a validated :class:`ModelConfig`.
+
+    ``policy.save_pretrained(folder)`` writes a pretrained folder;
+    ``NavigationPolicy.from_pretrained(path)`` loads any agent's folder or checkpoint (a
+    subclass refuses another agent's, naming it).
 
     Subclasses implement ``forward(batch) -> {"loss", ...}``, ``predict_action_chunk(obs)``,
     ``validation_step(batch)`` and the two hooks of :meth:`select_action`: ``_new_env_state()``
@@ -47,17 +53,6 @@ class NavigationPolicy(nn.Module):
     def device(self) -> torch.device:
         """Where the policy's tensors live (its normalisers move with ``.to()``)."""
         return self.action_scale.device
-
-    @classmethod
-    def from_pretrained(
-        cls, path, device: torch.device | str = "cpu", overrides: Sequence[str] = ()
-    ) -> NavigationPolicy:
-        """This class's agent from checkpoint ``path`` (see
-        :func:`vla_gr.policy.factory.load_policy`); a checkpoint of another agent is refused,
-        naming it."""
-        from vla_gr.policy.factory import load_policy
-
-        return load_policy(path, device=device, overrides=overrides, expected=cls)
 
     # ------------------------------------------------------------------ acting
     @torch.no_grad()

@@ -13,7 +13,7 @@ from collections.abc import Mapping, Sequence
 
 import torch
 
-from vla_gr.checkpoint import CheckpointError, load_model_state, read_checkpoint
+from vla_gr.checkpoint import CONFIG_FILE, CheckpointError, load_model_state, read_checkpoint
 from vla_gr.configs.model_schema import ModelConfig
 from vla_gr.errors import ConfigError
 from vla_gr.policy.base import NavigationPolicy
@@ -201,11 +201,12 @@ def model_key_gaps(saved: Mapping) -> tuple[list[str], list[str]]:
 _MIGRATE = "vla-gr export SRC DST --rename-keys"
 
 
-def _check_keys(saved: Mapping, path) -> None:
-    """CheckpointError in one line when ``saved`` (a checkpoint's ``model`` section) lacks a
-    key of this version's ``ModelConfig`` or has one it does not know (naming the new key
-    of a renamed one)."""
+def _check_keys(saved: Mapping, path, config_file: str = CONFIG_FILE) -> None:
+    """CheckpointError in one line when ``saved`` (a checkpoint's ``model`` section, from its
+    ``config_file``) lacks a key of this version's ``ModelConfig`` or has one it does not know
+    (naming the new key of a renamed one)."""
     missing, unknown = model_key_gaps(saved)
+    section = "model." if config_file == CONFIG_FILE else ""  # config.json is the section
     for old in unknown:
         if old in RENAMED_KEYS:
             raise CheckpointError(
@@ -221,20 +222,23 @@ def _check_keys(saved: Mapping, path) -> None:
     if unknown:
         more = f" (and {len(unknown) - 1} more)" if len(unknown) > 1 else ""
         raise CheckpointError(
-            f"checkpoint {path}: config.yaml has model.{unknown[0]}{more}, which this "
+            f"checkpoint {path}: {config_file} has {section}{unknown[0]}{more}, which this "
             "version does not know"
         )
     if missing:
         more = f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""
         raise CheckpointError(
-            f"checkpoint {path}: config.yaml lacks model.{missing[0]}{more}; a checkpoint "
-            "carries every model key (none is filled from code defaults)"
+            f"checkpoint {path}: {config_file} lacks {section}{missing[0]}{more}; a "
+            "checkpoint carries every model key (none is filled from code defaults)"
         )
 
 
-def checkpoint_model_config(config_yaml: str, path, overrides: Sequence[str] = ()) -> ModelConfig:
-    """The validated ``ModelConfig`` of a checkpoint's ``config.yaml`` with inference-only
-    ``overrides`` (keys under :data:`INFERENCE_SETTINGS`) applied."""
+def checkpoint_model_config(
+    config_yaml: str, path, overrides: Sequence[str] = (), config_file: str = CONFIG_FILE
+) -> ModelConfig:
+    """The validated ``ModelConfig`` of a checkpoint's ``config.yaml`` (``config_file``: the
+    file it came from, named in errors) with inference-only ``overrides`` (keys under
+    :data:`INFERENCE_SETTINGS`) applied."""
     from omegaconf import OmegaConf
 
     saved = OmegaConf.create(config_yaml)
@@ -251,7 +255,7 @@ def checkpoint_model_config(config_yaml: str, path, overrides: Sequence[str] = (
                 f"checkpoint override {item!r} must be key=value with a key under "
                 f"{', '.join(INFERENCE_SETTINGS)} (settings no weight depends on)"
             )
-    _check_keys(OmegaConf.to_container(saved.model), path)
+    _check_keys(OmegaConf.to_container(saved.model), path, config_file)
     schema = OmegaConf.structured(ModelConfig)
     merged = OmegaConf.merge(schema, saved.model, OmegaConf.from_dotlist(list(overrides)))
     return OmegaConf.to_object(merged)
@@ -263,13 +267,14 @@ def load_policy(
     overrides: Sequence[str] = (),
     expected: type[NavigationPolicy] | None = None,
 ) -> NavigationPolicy:
-    """The agent of checkpoint folder ``path`` (``<run>/checkpoints/best``), verified, in
-    eval mode on ``device``: the class its ``model.agent`` names (``expected``: refuse any
-    other), PEFT layers re-applied before the weights (``model.safetensors``, the EMA
-    averages when training used EMA) are loaded. ``overrides``
+    """The agent of checkpoint folder ``path`` (``<run>/checkpoints/best``, or a pretrained
+    folder of ``save_pretrained``), verified, in eval mode on ``device``: the class its
+    ``model.agent`` names (``expected``: refuse any other), PEFT layers re-applied before the
+    weights (``model.safetensors``, the EMA averages when training used EMA) are loaded.
+    ``overrides``
     (``"navigator.confirmation.ticks=3"``) change settings that no weight depends on."""
     loaded = read_checkpoint(path)
-    config = checkpoint_model_config(loaded.config_yaml, path, overrides)
+    config = checkpoint_model_config(loaded.config_yaml, path, overrides, loaded.config_file)
     cls = (
         policy_class(config.agent)
         if expected is None
