@@ -19,7 +19,7 @@ def tiny_model_config(**overrides) -> ModelConfig:
     ``overrides`` are flat: each key goes to the model layout, ``model.encoders`` or
     ``model.head``, whichever has it.
     """
-    layout = dict(image_size=16, n_obs_steps=2, horizon=4, n_action_steps=2)
+    layout = dict(image_size=16, n_obs_steps=2, horizon=4, n_action_steps=2, agent="end_to_end")
     encoders = dict(
         dim=16,
         vision_channels=[8],

@@ -12,8 +12,9 @@ and ``model.s1``: :mod:`vla_gr.core.dual_system.config`, ``model.pursuit``:
 The seed's latent ``DualSystemArchitecture`` (:class:`~vla_gr.core.dual_system.DualSystemConfig`)
 is a building block no agent runs: it has no section here.
 
-``model.agent`` picks what ``VLAGRPolicy`` builds: ``end_to_end`` (encoders -> fusion ->
-action head) or ``dual_system`` (S2: the goal head and the GR field; S1: the controller).
+``model.agent`` picks the agent's class: ``dual_system`` (the VLA-GR agent, the default: S2 the
+goal head and the GR field, S1 the controller) or ``end_to_end`` (encoders -> fusion -> action
+head: the ablation without the GR field, which recipes name explicitly).
 """
 
 from __future__ import annotations
@@ -98,7 +99,7 @@ class ModelConfig:
     n_action_steps: int = 8  # actions of a chunk executed before the next prediction
     action_dim: int = 3  # the world's action: (linear, angular, stop)
     image_size: int = 64  # the agent's input size (follows env.image_size)
-    agent: str = "end_to_end"  # end_to_end | dual_system (S2 goal head + GR field, S1)
+    agent: str = "dual_system"  # dual_system (S2 goal head + GR field, S1) | end_to_end
     encoders: EncodersConfig = field(default_factory=EncodersConfig)
     head: HeadConfig = field(default_factory=HeadConfig)
     gr_field: GRFieldConfig = field(default_factory=GRFieldConfig)
