@@ -407,7 +407,7 @@ def check_checkpoint(cfg, path: str | None) -> None:
                 f"checkpoint {path} was trained with {key}={want}, this eval has {key}={have}"
             )
     try:
-        checkpoint_model_config(loaded.config_yaml, path)
+        checkpoint_model_config(loaded.config_yaml, path, config_file=loaded.config_file)
     except CheckpointError as err:
         raise AgentError(str(err)) from None
     except Exception as err:  # noqa: BLE001 - any schema failure is the same user problem
