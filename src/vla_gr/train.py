@@ -2,8 +2,9 @@
 
 A recipe with ``pipeline.stages`` (e.g. ``--config-name recipe_vla_gr_cpu``) runs them in
 order (:mod:`vla_gr.training.pipeline`: collect, train, rollouts, DAgger, S1 data, S1,
-export), each resumable and skipped when its output is up to date; otherwise one training
-run as below.
+export), each resumable and skipped when its output is up to date (under torchrun the
+episode stages run once, split across the ranks, and the training stages use DDP);
+otherwise one training run as below.
 
 Runs single-process or under ``torchrun --nproc_per_node=N -m vla_gr.train --config-name
 config_server`` (DDP: NCCL on GPU, gloo on CPU). Read top to bottom:
@@ -41,16 +42,15 @@ from torch.nn.parallel import DistributedDataParallel
 
 from vla_gr import checkpoint as ckpt
 from vla_gr.configs.schema import VLAGRConfig
-from vla_gr.policy import NavigationPolicy, apply_peft, make_policy
+from vla_gr.policy import NavigationPolicy, VLAGRPolicy, apply_peft, make_policy
 from vla_gr.training.augment import augment_batch
 from vla_gr.training.closed_loop import best_score, closed_loop_metrics
 from vla_gr.training.data import build_datasets, build_loaders, prepare_store
 from vla_gr.training.distributed import (
     DistInfo,
     all_reduce_mean,
-    cleanup_distributed,
+    process_group,
     seed_everything,
-    setup_distributed,
 )
 from vla_gr.training.ema import EMA
 from vla_gr.training.logger import MetricsLogger, Progress
@@ -64,11 +64,8 @@ log = logging.getLogger("vla_gr.train")
 def train(cfg: VLAGRConfig, resolved: DictConfig | None = None) -> dict:
     """Train per ``cfg``; returns a summary (run folder, steps, final / best losses)."""
     resolved = resolved if resolved is not None else OmegaConf.structured(cfg)
-    dist = setup_distributed(cfg.training.device, cfg.training.ddp_backend)
-    try:
+    with process_group(cfg.training.device, cfg.training.ddp_backend) as dist:
         return _train(cfg, resolved, dist)
-    finally:
-        cleanup_distributed()
 
 
 def _train(cfg: VLAGRConfig, resolved: DictConfig, dist: DistInfo) -> dict:
@@ -222,6 +219,8 @@ def build_policy(cfg: VLAGRConfig, normalizers: Mapping | None = None) -> Naviga
         if fresh:
             log.info("kept the fresh initialisation of %d entries: %s", len(fresh), fresh)
     apply_peft(model, cfg.model.peft)
+    if cfg.training.gradient_checkpointing:  # the schema allows it for the dual system only
+        model.use_gradient_checkpointing()
     return model
 
 
@@ -243,7 +242,12 @@ def _set_up(cfg: VLAGRConfig, resolved: DictConfig, dist: DistInfo, resume_step:
     train_model = torch.compile(model) if t.compile else model
     if dist.distributed:
         ids = [device.index] if device.type == "cuda" else None
-        train_model = DistributedDataParallel(train_model, device_ids=ids)
+        # the dual system's forward trains its goal head alone (S1 and S2's checks have
+        # stages of their own): DDP must not wait for gradients of the parts it leaves out
+        partial = isinstance(model, VLAGRPolicy)
+        train_model = DistributedDataParallel(
+            train_model, device_ids=ids, find_unused_parameters=partial
+        )
 
     run_dir = _run_dir(cfg, dist)
     if dist.is_main:
@@ -384,16 +388,24 @@ def run_from_cli(config_name: str, overrides: Sequence[str]) -> int:
 
 def _run_stages(cfg: VLAGRConfig, resolved: DictConfig) -> int:
     """The recipe's stages (``pipeline.stages``), handed the training loop and the
-    evaluation harness; a table of each stage's product and time."""
+    evaluation harness; a table of each stage's product and time. Under torchrun the process
+    group is set up once for every stage (``training.device``, ``training.ddp_backend``)."""
     from vla_gr.evaluation.harness import evaluate
+    from vla_gr.evaluation.merge import merge_runs
     from vla_gr.training.pipeline import run_pipeline
     from vla_gr.training.stages import Services
 
-    try:
-        records = run_pipeline(resolved, cfg, Services(train=train, evaluate=evaluate))
-    except (ckpt.CheckpointError, FileNotFoundError) as err:
-        log.error("%s", err)
-        return 2
+    services = Services(train=train, evaluate=evaluate, merge=merge_runs)
+    with process_group(cfg.training.device, cfg.training.ddp_backend) as dist:
+        if not dist.is_main:  # logging and the table on rank 0 only
+            logging.getLogger("vla_gr").setLevel(logging.WARNING)
+        try:
+            records = run_pipeline(resolved, cfg, services)
+        except (ckpt.CheckpointError, FileNotFoundError) as err:
+            log.error("%s", err)
+            return 2
+    if not dist.is_main:
+        return 0
     lines = ["| stage | kind | seconds | product |", "|---|---|---|---|"]
     lines += [f"| {name} | {r['kind']} | {r['seconds']:.0f} | {r['product']} |"
               for name, r in records.items()]  # fmt: skip

@@ -127,6 +127,10 @@ class TrainingConfig:
     device: str = "auto"  # auto (cuda if available) | cpu | cuda
     amp: str = "none"  # none | fp16 (autocast + GradScaler) | bf16 (autocast)
     compile: bool = False  # torch.compile the policy
+    # recompute the goal head's stage activations in backward (model.agent=dual_system; the
+    # end-to-end agent sets model.encoders / model.head.gradient_checkpointing): less memory
+    # for one more forward of each stage; outputs, gradients and weights are unchanged
+    gradient_checkpointing: bool = False
     ddp_backend: str = "auto"  # auto: nccl on CUDA, gloo on CPU
     init_from: str | None = None  # checkpoint folder whose weights initialise the model
     # init_from may lack entries the model has (a newly added output keeps its fresh
@@ -250,6 +254,12 @@ def check_training_for_agent(training: TrainingConfig, agent: str) -> None:
         raise ValueError(
             f"training.best_metric='goal_iou' needs the goal head of model.agent=dual_system "
             f"(model.agent={agent!r})"
+        )
+    if training.gradient_checkpointing and agent != "dual_system":
+        raise ValueError(
+            f"training.gradient_checkpointing=true recomputes the goal head of "
+            f"model.agent=dual_system (model.agent={agent!r} sets "
+            "model.encoders.gradient_checkpointing and model.head.gradient_checkpointing)"
         )
     if training.flip_prob > 0.0 and agent != "dual_system":
         raise ValueError(

@@ -7,7 +7,7 @@ salvages the intact episodes of a damaged one.
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import zarr
@@ -79,6 +79,37 @@ def verify_store(path: str | Path, deep: bool = True) -> tuple[bool, list[str]]:
     return not store.damage, lines
 
 
+def create_like(source: EpisodeStore, dst: str | Path, overwrite: bool = False) -> EpisodeStore:
+    """A new empty store ``dst`` with ``source``'s image size, info and frame arrays (without
+    ``distractor_mask`` when ``source`` lacks it: only collecting again records it)."""
+    return EpisodeStore.create(
+        dst,
+        source.image_size,
+        overwrite=overwrite,
+        info=source.info,
+        distractors="distractor_mask" in source.frame_keys,
+    )
+
+
+def copy_episodes(source: EpisodeStore, target: EpisodeStore, rows: Iterable[int]) -> int:
+    """Append the episodes at store rows ``rows`` of ``source`` to ``target``, in that order
+    (frames, instruction, spec, metrics, episode index); returns how many."""
+    indices = source.episode_indices
+    count = 0
+    for e in rows:
+        target.append(
+            EpisodeRecord(
+                episode_index=int(indices[e]),
+                **source.episode(e),
+                instruction=source.instruction(e),
+                spec=source.spec(e),
+                metrics=source.metrics(e),
+            )
+        )
+        count += 1
+    return count
+
+
 def copy_store(
     src: str | Path, dst: str | Path, on_corrupt: str = "error", overwrite: bool = False
 ) -> EpisodeStore:
@@ -89,27 +120,9 @@ def copy_store(
     without ``distractor_mask`` gives a copy without it (only collecting again records it).
     """
     source = EpisodeStore.open(src, mode="r", on_corrupt=on_corrupt)
-    target = EpisodeStore.create(
-        dst,
-        source.image_size,
-        overwrite=overwrite,
-        info=source.info,
-        distractors="distractor_mask" in source.frame_keys,  # cannot be recreated: re-collect
-    )
+    target = create_like(source, dst, overwrite=overwrite)
     skipped = set(source.damaged_episodes)
-    indices = source.episode_indices
-    for e in range(source.num_episodes):
-        if e in skipped:
-            continue
-        target.append(
-            EpisodeRecord(
-                episode_index=int(indices[e]),
-                **source.episode(e),
-                instruction=source.instruction(e),
-                spec=source.spec(e),
-                metrics=source.metrics(e),
-            )
-        )
+    copy_episodes(source, target, [e for e in range(source.num_episodes) if e not in skipped])
     log.info(
         "copied %d of %d episodes from %s to %s",
         target.num_episodes,

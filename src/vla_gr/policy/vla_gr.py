@@ -89,6 +89,11 @@ class VLAGRPolicy(NavigationPolicy):
         return tuple(self._env_states)
 
     # ------------------------------------------------------------------ training
+    def use_gradient_checkpointing(self, on: bool = True) -> None:
+        """Recompute the goal head's stage activations in backward while training
+        (``training.gradient_checkpointing``): less memory, the same outputs and gradients."""
+        self.goal_head.gradient_checkpointing = bool(on)
+
     def forward(self, batch: Mapping) -> dict[str, torch.Tensor]:
         """Training loss of the goal head on the last observation frame's ``goal_mask``.
 

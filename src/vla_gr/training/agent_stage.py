@@ -23,6 +23,8 @@ import torch
 
 from vla_gr.checkpoint import load_model_state, read_checkpoint
 from vla_gr.errors import UserError
+from vla_gr.training.distributed import is_main_process
+from vla_gr.training.part_training import ON_CPU, Compute, PartTrainer, rank_generator
 
 log = logging.getLogger(__name__)
 
@@ -86,12 +88,14 @@ def build_agent_from(
 def write_agent(policy, loaded, config, out: str | Path, state_updates: dict) -> Path:
     """Write ``policy`` with ``config`` as checkpoint folder ``out`` (replaced), keeping the
     training state of ``loaded`` (without its RNG) plus ``state_updates``; verified by
-    loading it back."""
+    loading it back. Rank 0 writes; the other ranks of a torchrun job return ``out``."""
     from omegaconf import OmegaConf
 
     from vla_gr.policy.export import write_checkpoint_folder
 
-    tensors = {k: v.detach().contiguous() for k, v in policy.state_dict().items()}
+    if not is_main_process():  # under torchrun every rank holds the same weights
+        return Path(out)
+    tensors = {k: v.detach().cpu().contiguous() for k, v in policy.state_dict().items()}
     return write_checkpoint_folder(out, loaded, tensors, OmegaConf.to_yaml(config), state_updates)
 
 
@@ -173,7 +177,7 @@ def labelled_frames(
 def fit_part(
     module: torch.nn.Module,
     frames: dict[str, np.ndarray],
-    batch_loss: Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor],
+    batch_loss: Callable[..., torch.Tensor],
     evaluate: Callable[[dict[str, np.ndarray]], dict],
     score: str,
     name: str,
@@ -183,13 +187,15 @@ def fit_part(
     seed: int,
     val_fraction: float = 0.1,
     eval_every: int = 250,
+    compute: Compute = ON_CPU,
 ) -> tuple[dict, dict[str, np.ndarray]]:
     """Train ``module`` on ``frames`` (:func:`labelled_frames`), whole houses held out.
 
-    Each step draws ``batch_size`` training frames, mirrors half of them left-right (labels
-    with a width axis too) and minimises ``batch_loss(rgb, depth, label)``. Every
-    ``eval_every`` steps ``evaluate(held-out frames)`` reports a row; the weights with the
-    highest ``row[score]`` are kept. Returns the summary and the held-out frames.
+    Each step draws ``batch_size`` training frames (on each rank under torchrun), mirrors half
+    of them left-right (labels with a width axis too) and minimises ``batch_loss(rgb=, depth=,
+    label=)`` on ``compute``'s device and precision. Every ``eval_every`` steps
+    ``evaluate(held-out frames)`` reports a row; the weights with the highest ``row[score]``
+    are kept. Returns the summary and the held-out frames.
     """
     from vla_gr.training.optim import build_optimizer, build_scheduler
 
@@ -204,29 +210,27 @@ def fit_part(
     log.info("%s frames: %d train / %d val (%d houses held out)", name, len(train_rows),
              int(held.sum()), n_val)  # fmt: skip
     module.requires_grad_(True)
+    trainer = PartTrainer(module, batch_loss, compute)
     optimizer = build_optimizer(module, lr, 1e-4)
     scheduler = build_scheduler(optimizer, min(100, steps // 10), steps, 0.05)
+    draws = rank_generator(rng, seed)
     best, best_state, history = -np.inf, None, []
     t0 = time.perf_counter()
     for step in range(1, steps + 1):
-        module.train()
-        rows = rng.choice(train_rows, size=batch_size)  # (B,)
+        rows = draws.choice(train_rows, size=batch_size)  # (B,)
         rgb = torch.from_numpy(frames["rgb"][rows])  # (B, 3, H, W) uint8
         depth = torch.from_numpy(frames["depth"][rows])  # (B, 1, H, W)
         label = torch.from_numpy(frames["label"][rows])  # (B,) or (B, H, W)
-        flip = torch.from_numpy(rng.random(batch_size) < 0.5)  # (B,) mirrored frames
+        flip = torch.from_numpy(draws.random(batch_size) < 0.5)  # (B,) mirrored frames
         rgb = torch.where(flip[:, None, None, None], rgb.flip(-1), rgb)
         depth = torch.where(flip[:, None, None, None], depth.flip(-1), depth)
         if label.dim() == 3:  # per-pixel labels mirror with their frames
             label = torch.where(flip[:, None, None], label.flip(-1), label)
-        loss = batch_loss(rgb, depth, label)
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        optimizer.step()
-        scheduler.step()
+        batch = {"rgb": rgb, "depth": depth, "label": label}
+        loss = trainer.step(batch, optimizer, scheduler)
         if step % eval_every == 0 or step == steps:
             module.eval()
-            row = {"step": step, "loss": round(float(loss.detach()), 4), **evaluate(val)}
+            row = {"step": step, "loss": round(loss, 4), **evaluate(val)}
             row["seconds"] = round(time.perf_counter() - t0, 1)
             history.append(row)
             log.info("%s %s", name, json.dumps(row))
@@ -234,7 +238,7 @@ def fit_part(
                 best = row[score]
                 best_state = {k: v.clone() for k, v in module.state_dict().items()}
     module.load_state_dict(best_state)
-    module.eval()
+    module.cpu().eval()
     return {f"best_val_{score}": best, "history": history}, val
 
 

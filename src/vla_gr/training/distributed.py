@@ -3,11 +3,14 @@
 The same script runs single-process or under ``torchrun --nproc_per_node=N`` (which sets
 ``RANK``, ``WORLD_SIZE``, ``LOCAL_RANK``, ``MASTER_ADDR``, ``MASTER_PORT``): NCCL on GPU,
 gloo on CPU. Logging and checkpoints happen on rank 0 only. Set up first by
-``vla_gr.train``; ``training/data.py`` builds its sampler.
+``vla_gr.train`` (once for a whole staged recipe); ``training/data.py`` builds its sampler;
+:func:`rank_share` splits a stage's episodes over the ranks.
 """
 
 from __future__ import annotations
 
+import contextlib
+import datetime
 import logging
 import os
 import random
@@ -54,6 +57,11 @@ def resolve_device(preference: str, local_rank: int = 0) -> torch.device:
     return torch.device("cpu")
 
 
+def local_device(preference: str) -> torch.device:
+    """:func:`resolve_device` for this process's GPU under torchrun (``LOCAL_RANK``)."""
+    return resolve_device(preference, int(os.environ.get("LOCAL_RANK", "0")))
+
+
 def setup_distributed(device: str = "auto", backend: str = "auto") -> DistInfo:
     """Initialise the process group when launched by torchrun; pick this rank's device."""
     world = int(os.environ.get("WORLD_SIZE", "1"))
@@ -74,16 +82,72 @@ def setup_distributed(device: str = "auto", backend: str = "auto") -> DistInfo:
     return DistInfo(rank, world, local_rank, dev, backend)
 
 
+@contextlib.contextmanager
+def process_group(device: str = "auto", backend: str = "auto") -> Iterator[DistInfo]:
+    """:func:`setup_distributed` for the block; the process group is destroyed at its end only
+    when the block made it (a staged recipe sets it up once for all of its stages)."""
+    made = not (dist.is_available() and dist.is_initialized())
+    info = setup_distributed(device, backend)
+    try:
+        yield info
+    finally:
+        if made:
+            cleanup_distributed()
+
+
+def process_rank() -> tuple[int, int]:
+    """(rank, world size) of this process in the initialised process group, else (0, 1)."""
+    if dist.is_available() and dist.is_initialized():
+        return dist.get_rank(), dist.get_world_size()
+    return 0, 1
+
+
+def is_main_process() -> bool:
+    """Whether this process writes logs and outputs (rank 0, or no process group)."""
+    return process_rank()[0] == 0
+
+
+def rank_share(first: int, count: int, rank: int, world: int) -> range:
+    """Rank ``rank``'s contiguous share of items ``first .. first + count - 1``: the shares of
+    ranks 0 .. world - 1 follow one another, the first ``count % world`` one item longer."""
+    if not 0 <= rank < world:
+        raise ValueError(f"rank={rank} must be in [0, {world})")
+    size, extra = divmod(count, world)
+    start = first + rank * size + min(rank, extra)
+    return range(start, start + size + (rank < extra))
+
+
 def cleanup_distributed() -> None:
     """Destroy the process group if one is initialised."""
+    global _WAIT_GROUP
     if dist.is_available() and dist.is_initialized():
         dist.destroy_process_group()
+    _WAIT_GROUP = None
 
 
 def barrier() -> None:
     """``dist.barrier()`` when distributed, else nothing."""
     if dist.is_available() and dist.is_initialized():
         dist.barrier()
+
+
+#: The gloo group :func:`wait_for_ranks` waits in (made at its first call, on every rank).
+_WAIT_GROUP = None
+#: How long a rank waits for the others there: a stage that rank 0 runs alone may take hours,
+#: where NCCL's default timeout is minutes.
+WAIT_TIMEOUT = datetime.timedelta(days=2)
+
+
+def wait_for_ranks() -> None:
+    """A barrier for ranks that wait while others work alone (a stage of rank 0, a longer
+    share of episodes): over a gloo group with :data:`WAIT_TIMEOUT`; nothing when not
+    distributed."""
+    global _WAIT_GROUP
+    if not (dist.is_available() and dist.is_initialized()):
+        return
+    if _WAIT_GROUP is None:
+        _WAIT_GROUP = dist.new_group(backend="gloo", timeout=WAIT_TIMEOUT)
+    dist.barrier(group=_WAIT_GROUP)
 
 
 def all_reduce_mean(x: torch.Tensor) -> torch.Tensor:

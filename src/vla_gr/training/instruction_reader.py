@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from vla_gr.training.agent_stage import build_agent_from, finish_part
+from vla_gr.training.part_training import ON_CPU, Compute
 
 log = logging.getLogger(__name__)
 
@@ -35,10 +36,12 @@ def train_instruction_reader(
     lr: float = 3e-3,
     seed: int = 0,
     settings: Sequence[str] = (),
+    compute: Compute = ON_CPU,
 ) -> dict:
     """Train the tagger on ``count`` generated requests, calibrate it on ``dev_sets`` and write
     the agent to ``out``; returns the summary (training loss; tag accuracy on fresh generated
-    requests; the development scores at the chosen temperature and threshold)."""
+    requests; the development scores at the chosen temperature and threshold). The tagger trains
+    on ``compute``'s device and precision, data parallel under torchrun (rank 0 writes)."""
     from vla_gr.agent.reading.vocabulary import word_table
     from vla_gr.training.reader_training import (
         calibrate_reader,
@@ -60,7 +63,7 @@ def train_instruction_reader(
     c = reader.config
     grammar = RequestGrammar(word_table(), c.goal_categories, c.categories, c.room_types)
     corpus = encode_corpus(reader, grammar.batch(count, seed))
-    losses = fit_tagger(reader, corpus, steps, batch_size, lr, seed)
+    losses = fit_tagger(reader, corpus, steps, batch_size, lr, seed, compute)
     held = encode_corpus(reader, grammar.batch(max(count // 10, 100), seed + 1))
     summary = {
         "corpus": count,

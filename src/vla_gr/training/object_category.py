@@ -28,6 +28,7 @@ from vla_gr.training.agent_stage import (
     train_frame_part,
 )
 from vla_gr.training.object_labels import frame_categories
+from vla_gr.training.part_training import ON_CPU, Compute
 
 log = logging.getLogger(__name__)
 
@@ -62,10 +63,11 @@ def segmentation_scores(segmenter, frames: dict[str, np.ndarray], batch_size: in
     segmenter.eval()
     K = 1 + len(segmenter.config.categories)
     confusion = np.zeros((K, K), np.int64)  # (true, predicted)
+    device = next(segmenter.parameters()).device
     for i in range(0, len(frames["label"]), batch_size):
-        rgb = torch.from_numpy(frames["rgb"][i : i + batch_size])  # (b, 3, H, W)
-        depth = torch.from_numpy(frames["depth"][i : i + batch_size])  # (b, 1, H, W)
-        predicted = segmenter(rgb, depth).argmax(1).numpy().reshape(-1)  # (b * H * W,)
+        rgb = torch.from_numpy(frames["rgb"][i : i + batch_size]).to(device)  # (b, 3, H, W)
+        depth = torch.from_numpy(frames["depth"][i : i + batch_size]).to(device)  # (b, 1, H, W)
+        predicted = segmenter(rgb, depth).argmax(1).cpu().numpy().reshape(-1)  # (b * H * W,)
         true = frames["label"][i : i + batch_size].reshape(-1).astype(np.int64)  # (b * H * W,)
         confusion += np.bincount(true * K + predicted, minlength=K * K).reshape(K, K)
     hits = np.diag(confusion)  # (K,)
@@ -102,6 +104,7 @@ def train_object_category(
     val_fraction: float = 0.1,
     eval_every: int = 250,
     eval_frames: dict[str, np.ndarray] | None = None,
+    compute: Compute = ON_CPU,
 ) -> dict:
     """Train the segmenter on ``frames`` (labelled in ``categories``' order; background
     pixels weigh ``background_weight``) and write the agent to ``out``; returns the summary."""
@@ -112,11 +115,11 @@ def train_object_category(
         part="object_category", labels_key="categories", role="segmenter",
         threshold_key="object_reject_threshold",
         batch_loss=lambda segmenter, rgb, depth, label: F.cross_entropy(
-            segmenter(rgb, depth), label.long(), weight=weight
+            segmenter(rgb, depth), label.long(), weight=weight.to(rgb.device)
         ),
         evaluate=segmentation_scores, score="mean_iou", name="object category", seed=seed,
         steps=steps, batch_size=batch_size, lr=lr, val_fraction=val_fraction,
-        eval_every=eval_every,
+        eval_every=eval_every, compute=compute,
     )  # fmt: skip
 
 

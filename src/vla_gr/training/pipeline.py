@@ -18,6 +18,11 @@ A stage interrupted under the same hashes runs again and resumes where its kind 
 The stage kinds live in :mod:`vla_gr.training.stages`; the training loop and the
 evaluation harness are handed in (:class:`~vla_gr.training.stages.Services`), so this
 package imports no app.
+
+Under torchrun every rank runs this loop on the same records; rank 0 alone writes them (and
+removes a stale output), and the ranks wait for one another before each stage and after it. A
+stage of a kind in :data:`~vla_gr.training.stages.EVERY_RANK` runs on every rank, any other on
+rank 0 alone.
 """
 
 from __future__ import annotations
@@ -34,6 +39,7 @@ from pathlib import Path
 from omegaconf import DictConfig, OmegaConf
 
 from vla_gr.errors import UserError
+from vla_gr.training.distributed import is_main_process, wait_for_ranks
 
 log = logging.getLogger(__name__)
 
@@ -96,6 +102,8 @@ def _config_digest(stage, merged: DictConfig) -> str:
     for key in [k for k in tree.get("eval", {}) if k.startswith("video_")]:
         tree["eval"].pop(key)  # which episodes are filmed: pictures, not the product
     tree.get("training", {}).pop("eval_videos", None)
+    # recomputing activations in backward gives the same weights: memory, not the product
+    tree.get("training", {}).pop("gradient_checkpointing", None)
     payload = {"kind": stage.kind, "model_overrides": list(stage.model_overrides), "cfg": tree}
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
 
@@ -113,10 +121,11 @@ def _write_atomic(path: Path, record: Mapping) -> None:
 def run_pipeline(resolved: DictConfig, cfg, services) -> dict[str, dict]:
     """Run the stages of ``cfg.pipeline`` (``resolved`` is the recipe as composed); returns
     each stage's record (``stage.json``) by name."""
-    from vla_gr.training.stages import STAGES
+    from vla_gr.training.stages import EVERY_RANK, STAGES
 
     p = cfg.pipeline
     root = Path(p.output_dir)
+    main = is_main_process()
     root.mkdir(parents=True, exist_ok=True)
     records: dict[str, dict] = {}
     for stage in p.stages:
@@ -128,6 +137,7 @@ def run_pipeline(resolved: DictConfig, cfg, services) -> dict[str, dict]:
             "inputs": {name: records[name]["product_sha256"] for name in stage.inputs},
         }
         done, started = _read(folder / STAGE_FILE), _read(folder / STARTED_FILE)
+        wait_for_ranks()  # every rank has read the records before rank 0 changes them
         if done is not None and _same(done, wanted):
             log.info("stage %s: up to date (%s), skipped", stage.name, done["product"])
             records[stage.name] = done
@@ -142,26 +152,33 @@ def run_pipeline(resolved: DictConfig, cfg, services) -> dict[str, dict]:
                 )
             log.info("stage %s: %s changed since %s was made; running it again", stage.name,
                      why, folder)  # fmt: skip
-            shutil.rmtree(folder)
+            if main:
+                shutil.rmtree(folder)
             previous = None
         attempts = list((previous or {}).get("attempts", []))
-        folder.mkdir(parents=True, exist_ok=True)
-        _write_atomic(folder / STARTED_FILE, {**wanted, "attempts": attempts})
+        if main:
+            folder.mkdir(parents=True, exist_ok=True)
+            _write_atomic(folder / STARTED_FILE, {**wanted, "attempts": attempts})
+        wait_for_ranks()
         products = {name: Path(records[name]["product"]) for name in stage.inputs}
         log.info("stage %s (%s): running in %s", stage.name, stage.kind, folder)
         t0 = time.time()
-        product = STAGES[stage.kind](stage, stage_cfg, merged, folder, products, services)
+        product = None
+        if main or stage.kind in EVERY_RANK:
+            product = STAGES[stage.kind](stage, stage_cfg, merged, folder, products, services)
         attempts.append({"started": t0, "seconds": round(time.time() - t0, 1)})
-        record = {
-            **wanted,
-            "product": str(Path(product)),
-            "product_sha256": tree_digest(Path(product)),
-            "attempts": attempts,
-            "seconds": round(sum(a["seconds"] for a in attempts), 1),
-        }
-        _write_atomic(folder / STAGE_FILE, record)
-        log.info("stage %s: done in %.0f s -> %s", stage.name, record["seconds"], product)
-        records[stage.name] = record
+        if main:
+            record = {
+                **wanted,
+                "product": str(Path(product)),
+                "product_sha256": tree_digest(Path(product)),
+                "attempts": attempts,
+                "seconds": round(sum(a["seconds"] for a in attempts), 1),
+            }
+            _write_atomic(folder / STAGE_FILE, record)
+            log.info("stage %s: done in %.0f s -> %s", stage.name, record["seconds"], product)
+        wait_for_ranks()
+        records[stage.name] = _read(folder / STAGE_FILE)  # rank 0's record, on every rank
     return records
 
 

@@ -24,6 +24,7 @@ import torch.nn.functional as F
 from vla_gr.agent.reading.reader import FIELDS, InstructionReader
 from vla_gr.agent.reading.tagger import TAGS
 from vla_gr.errors import UserError
+from vla_gr.training.part_training import ON_CPU, Compute, PartTrainer, rank_seed
 
 log = logging.getLogger(__name__)
 
@@ -63,33 +64,43 @@ def encode_corpus(reader: InstructionReader, requests, batch: int = 128) -> dict
 
 
 def fit_tagger(
-    reader: InstructionReader, corpus: dict, steps: int, batch_size: int, lr: float, seed: int
+    reader: InstructionReader,
+    corpus: dict,
+    steps: int,
+    batch_size: int,
+    lr: float,
+    seed: int,
+    compute: Compute = ON_CPU,
 ) -> list[float]:
-    """AdamW on the tagger's per-word cross-entropy; returns the loss per step."""
+    """AdamW on the tagger's per-word cross-entropy on ``compute``'s device and precision
+    (``batch_size`` requests per rank under torchrun); returns the loss per step. The tagger
+    ends on the CPU, in eval mode."""
     tagger = reader.tagger.requires_grad_(True).train()
+
+    def loss(states, features, mask, labels) -> torch.Tensor:
+        logits = tagger(states, features, mask)  # (b, w, T)
+        return F.cross_entropy(logits.reshape(-1, len(TAGS)), labels.reshape(-1), ignore_index=-100)
+
+    trainer = PartTrainer(tagger, loss, compute)
     optimizer = torch.optim.AdamW(tagger.parameters(), lr=lr, weight_decay=1e-4)
     schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, steps)
-    generator = torch.Generator().manual_seed(seed)
+    generator = torch.Generator().manual_seed(rank_seed(seed))
     n = len(corpus["labels"])
     losses = []
     for step in range(steps):
         idx = torch.randint(n, (batch_size,), generator=generator)  # (b,)
         mask = corpus["mask"][idx]  # (b, W)
         width = int(mask.sum(dim=1).max())
-        logits = tagger(
-            corpus["states"][idx, :width].float(), corpus["features"][idx, :width], mask[:, :width]
-        )  # (b, w, T)
-        loss = F.cross_entropy(
-            logits.reshape(-1, len(TAGS)), corpus["labels"][idx, :width].reshape(-1),
-            ignore_index=-100,
-        )  # fmt: skip
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        optimizer.step()
-        schedule.step()
-        losses.append(float(loss.detach()))
+        batch = {
+            "states": corpus["states"][idx, :width].float(),  # (b, w, E)
+            "features": corpus["features"][idx, :width],  # (b, w, F)
+            "mask": mask[:, :width],  # (b, w)
+            "labels": corpus["labels"][idx, :width],  # (b, w)
+        }
+        losses.append(trainer.step(batch, optimizer, schedule))
         if (step + 1) % 200 == 0:
             log.info("tagger step %d: loss %.4f", step + 1, np.mean(losses[-200:]))
+    tagger.cpu()
     reader.eval()
     return losses
 

@@ -28,6 +28,7 @@ from vla_gr.training.agent_stage import (
     part_setting,
     train_frame_part,
 )
+from vla_gr.training.part_training import ON_CPU, Compute
 
 log = logging.getLogger(__name__)
 
@@ -82,11 +83,12 @@ def room_accuracy(classifier, frames: dict[str, np.ndarray], batch_size: int = 5
     """Accuracy of ``classifier`` on ``frames`` (:func:`room_frames`): overall, per room
     type, and of its confident answers (probability >= 0.8) with their share."""
     classifier.eval()
+    device = next(classifier.parameters()).device
     probs = []
     for i in range(0, len(frames["label"]), batch_size):
-        rgb = torch.from_numpy(frames["rgb"][i : i + batch_size])  # (b, 3, H, W)
-        depth = torch.from_numpy(frames["depth"][i : i + batch_size])  # (b, 1, H, W)
-        probs.append(classifier.probabilities(rgb, depth))  # (b, R)
+        rgb = torch.from_numpy(frames["rgb"][i : i + batch_size]).to(device)  # (b, 3, H, W)
+        depth = torch.from_numpy(frames["depth"][i : i + batch_size]).to(device)  # (b, 1, H, W)
+        probs.append(classifier.probabilities(rgb, depth).cpu())  # (b, R)
     p = torch.cat(probs).numpy()  # (N, R)
     label = frames["label"]
     right = p.argmax(1) == label  # (N,)
@@ -119,6 +121,7 @@ def train_room_type(
     val_fraction: float = 0.1,
     eval_every: int = 250,
     eval_frames: dict[str, np.ndarray] | None = None,
+    compute: Compute = ON_CPU,
 ) -> dict:
     """Train the classifier on ``frames`` (labelled in ``room_types``' order) and write the
     agent to ``out``; returns the summary."""
@@ -131,6 +134,7 @@ def train_room_type(
         ),
         evaluate=room_accuracy, score="accuracy", name="room type", seed=seed, steps=steps,
         batch_size=batch_size, lr=lr, val_fraction=val_fraction, eval_every=eval_every,
+        compute=compute,
     )  # fmt: skip
 
 

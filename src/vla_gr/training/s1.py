@@ -27,7 +27,9 @@ from vla_gr.agent.followers.s1_inputs import PlanMemory
 from vla_gr.errors import UserError
 from vla_gr.training.agent_stage import build_agent_from, write_agent
 from vla_gr.training.optim import build_optimizer, build_scheduler
+from vla_gr.training.part_training import ON_CPU, Compute, PartTrainer, rank_generator
 from vla_gr.training.s1_data import load_s1_data
+from vla_gr.training.step import to_device
 
 log = logging.getLogger(__name__)
 
@@ -85,16 +87,17 @@ def plans_without_s2(episode: np.ndarray, s1) -> np.ndarray:
 
 
 def _validate(policy, batches: S1Batches, batch_size: int) -> dict[str, float]:
-    """Mean losses on ``batches``; the noise comes from fixed seeds in a forked RNG, so
-    validations are comparable and the training randomness is untouched."""
+    """Mean losses on ``batches`` (on S1's device); the noise comes from fixed seeds in a
+    forked RNG, so validations are comparable and the training randomness is untouched."""
     policy.s1.eval()
+    device = next(policy.s1.parameters()).device
     sums: dict[str, float] = {}
     n = 0
     gen = torch.Generator().manual_seed(0)
-    with torch.no_grad(), torch.random.fork_rng(devices=[]):
+    with torch.no_grad(), torch.random.fork_rng(devices=[device] if device.type == "cuda" else []):
         for batch in batches.ordered(batch_size):
             torch.manual_seed(int(torch.randint(0, 2**31 - 1, (1,), generator=gen)))
-            out = policy.s1(batch)
+            out = policy.s1(to_device(batch, device))
             b = len(batch["stop"])
             for k, v in out.items():
                 sums[k] = sums.get(k, 0.0) + float(v) * b
@@ -116,8 +119,12 @@ def train_s1(
     init_s1: bool = False,
     val_fraction: float = 0.1,
     eval_every: int = 250,
+    compute: Compute = ON_CPU,
 ) -> dict:
-    """Train S1 and write the agent with the best S1 to ``out``; returns the summary."""
+    """Train S1 and write the agent with the best S1 to ``out``; returns the summary.
+
+    ``compute``: the device and precision (:mod:`.part_training`); under torchrun every rank
+    draws ``batch_size`` samples per step and rank 0 writes the agent."""
     torch.manual_seed(seed)
     policy, loaded, config = build_agent_from(
         init, "s1", settings, keep_part=init_s1, forced=["s1.kind=learned"]
@@ -145,23 +152,17 @@ def train_s1(
     policy.requires_grad_(False)
     policy.s1.requires_grad_(True)
     policy.s1.train()
+    s1 = policy.s1
+    trainer = PartTrainer(s1, lambda **batch: s1(batch)["loss"], compute, grad_clip=1.0)
     optimizer = build_optimizer(policy.s1, lr, weight_decay)
     scheduler = build_scheduler(optimizer, min(100, steps // 10), steps, 0.05)
+    draws = rank_generator(rng, seed)
     best, best_state, history = np.inf, None, []
     t0 = time.perf_counter()
     for step in range(1, steps + 1):
-        out_step = policy.s1(train.sample(batch_size, rng))
-        optimizer.zero_grad(set_to_none=True)
-        out_step["loss"].backward()
-        torch.nn.utils.clip_grad_norm_(policy.s1.parameters(), 1.0)
-        optimizer.step()
-        scheduler.step()
+        loss = trainer.step(train.sample(batch_size, draws), optimizer, scheduler)
         if step % eval_every == 0 or step == steps:
-            row = {
-                "step": step,
-                "loss": float(out_step["loss"].detach()),
-                **_validate(policy, val, 512),
-            }
+            row = {"step": step, "loss": loss, **_validate(policy, val, 512)}
             row["seconds"] = round(time.perf_counter() - t0, 1)
             history.append(row)
             log.info("S1 %s", json.dumps(row))
@@ -169,6 +170,7 @@ def train_s1(
                 best = row["val_loss"]
                 best_state = {k: v.clone() for k, v in policy.s1.state_dict().items()}
     policy.s1.load_state_dict(best_state)
+    policy.cpu()
     summary = {"best_val_loss": best, "history": history, "data": [str(d) for d in data]}
     write_agent(policy, loaded, config, out, {"s1_training": summary, "s1_steps": steps})
     log.info("wrote %s", out)

@@ -26,6 +26,12 @@ graft     ``agent/``: + another agent's ``part``          checkpoint, donor
 source    an existing checkpoint or store (``path``)    -
 export    ``agent/``: the shipping checkpoint           checkpoint
 ======== ============================================ ==========================
+
+Under torchrun (``WORLD_SIZE`` > 1) the kinds of :data:`EVERY_RANK` run on every rank:
+``collect`` and ``rollout`` once, split across the ranks (:mod:`.ranks`); ``train`` with DDP;
+``s1``, ``room_type``, ``object_category`` and ``instruction_reader`` data parallel
+(:mod:`.part_training`), rank 0 writing. The other kinds run on rank 0 while the others wait.
+Training kinds run on ``training.device`` in ``training.amp`` precision.
 """
 
 from __future__ import annotations
@@ -37,19 +43,30 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from vla_gr.errors import UserError
+from vla_gr.training.distributed import is_main_process, process_rank, wait_for_ranks
+from vla_gr.training.part_training import Compute
+from vla_gr.training.ranks import collect_on_ranks, rollout_on_ranks
 
 log = logging.getLogger(__name__)
 
-__all__ = ["STAGES", "Services"]
+__all__ = ["EVERY_RANK", "STAGES", "Services"]
+
+#: Stage kinds every rank runs under torchrun (see the module docstring).
+EVERY_RANK = frozenset(
+    {"collect", "train", "rollout", "s1", "room_type", "object_category", "instruction_reader"}
+)
 
 
 @dataclasses.dataclass(frozen=True)
 class Services:
     """What the app hands the pipeline: ``train(cfg, resolved) -> summary`` (the training
-    loop) and ``evaluate(cfg) -> metrics`` (the evaluation harness, for rollouts)."""
+    loop), ``evaluate(cfg) -> metrics`` (the evaluation harness, for rollouts) and, for
+    rollouts split across torchrun's ranks, ``merge(cfg, parts) -> metrics`` (eval runs of
+    shares of ``cfg``'s episodes written as one run)."""
 
     train: Callable
     evaluate: Callable
+    merge: Callable | None = None
 
 
 def _inputs(stage, inputs: dict[str, Path], want: int, most: int | None = None) -> list[Path]:
@@ -75,9 +92,14 @@ def collect_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
     bases = _inputs(stage, inputs, 0, 1)
     store = folder / "store.zarr"
     copied = folder / "copied"  # marks a complete copy of the input store
-    if bases and not copied.exists():
+    rank, world = process_rank()
+    if bases and not copied.exists() and rank == 0:
         copy_store(_store_of(bases[0]), store, overwrite=True)
         copied.touch()
+    if world > 1:
+        wait_for_ranks()  # the copy is complete before any rank reads it
+        collect_on_ranks(cfg, store, folder / "ranks")
+        return store
     c = dataclasses.replace(cfg.collect, output=str(store), mode="append")
     collect(dataclasses.replace(cfg, collect=c))
     return store
@@ -126,9 +148,17 @@ def rollout_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
         video_successes=0,
         video_per_cause=0,
     )
-    metrics = services.evaluate(dataclasses.replace(cfg, eval=e))
-    log.info("stage %s: SR %.3f on %d %s episodes", stage.name, metrics["metrics"]["success"],
-             metrics["metrics"]["episodes"], e.split)  # fmt: skip
+    cfg = dataclasses.replace(cfg, eval=e)
+    if process_rank()[1] > 1:
+        if services.merge is None:
+            raise UserError("a rollout stage under torchrun needs the app's merge of eval runs")
+        metrics = rollout_on_ranks(cfg, out, folder / "ranks", services.evaluate, services.merge)
+    else:
+        metrics = services.evaluate(cfg)
+    if is_main_process():
+        m = metrics["metrics"]
+        log.info("stage %s: SR %.3f on %d %s episodes", stage.name, m["success"], m["episodes"],
+                 e.split)  # fmt: skip
     return out
 
 
@@ -168,9 +198,14 @@ def s1_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
     agent = folder / "agent"
     train_s1(
         checkpoint, agent, data, steps=s.steps, batch_size=s.batch_size, lr=s.lr,
-        seed=cfg.seed, settings=s.settings, init_s1=s.init_s1,
+        seed=cfg.seed, settings=s.settings, init_s1=s.init_s1, compute=_compute(cfg),
     )  # fmt: skip
     return agent
+
+
+def _compute(cfg) -> Compute:
+    """Where and in which precision a part stage trains: ``training.device``, ``.amp``."""
+    return Compute(device=cfg.training.device, amp=cfg.training.amp)
 
 
 def _frame_part_stage(part: str, stage, cfg, folder: Path, inputs) -> Path:
@@ -192,7 +227,8 @@ def _frame_part_stage(part: str, stage, cfg, folder: Path, inputs) -> Path:
     agent = folder / "agent"
     train(
         checkpoint, agent, frames, labels, steps=p.steps, batch_size=p.batch_size, lr=p.lr,
-        seed=cfg.seed, settings=p.settings, reject_threshold=p.reject_threshold, **extra,
+        seed=cfg.seed, settings=p.settings, reject_threshold=p.reject_threshold,
+        compute=_compute(cfg), **extra,
     )  # fmt: skip
     return agent
 
@@ -218,6 +254,7 @@ def instruction_reader_stage(stage, cfg, resolved, folder: Path, inputs, service
     train_instruction_reader(
         checkpoint, agent, dev_sets=r.dev_sets, count=r.count, steps=r.steps,
         batch_size=r.batch_size, lr=r.lr, seed=cfg.seed, settings=r.settings,
+        compute=_compute(cfg),
     )  # fmt: skip
     return agent
 

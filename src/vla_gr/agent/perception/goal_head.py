@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import torch
 import torch.nn.functional as F
 from torch import nn
+from torch.utils.checkpoint import checkpoint
 
 from vla_gr.core.encoders import TEXT_ENCODERS, build_text_encoder
 from vla_gr.geometry.robot_spec import MAX_DEPTH
@@ -136,6 +137,8 @@ class GoalHead(nn.Module):
         self.visible_logit = nn.Sequential(
             nn.Linear(2 * widths[-1], widths[-1]), nn.SiLU(), nn.Linear(widths[-1], 1)
         )
+        # training only (``training.gradient_checkpointing``): recompute each stage in backward
+        self.gradient_checkpointing = False
 
     @property
     def stride(self) -> int:
@@ -178,15 +181,15 @@ class GoalHead(nn.Module):
         if text.shape[0] != x.shape[0]:
             raise ValueError(f"{text.shape[0]} instructions for {x.shape[0]} frames")
         text = text.to(x.dtype)
-        skips = [self.stem(x, text)]  # [(B, C0, H, W)]
+        skips = [self._run(self.stem, x, text)]  # [(B, C0, H, W)]
         for stage in self.down:
-            skips.append(stage(skips[-1], text))  # (B, C_i, H / 2^i, W / 2^i)
+            skips.append(self._run(stage, skips[-1], text))  # (B, C_i, H / 2^i, W / 2^i)
         h = skips.pop()  # (B, C_last, H / s, W / s)
         pooled = torch.cat([h.mean(dim=(2, 3)), h.amax(dim=(2, 3))], dim=1)  # (B, 2 C_last)
         for stage in self.up:
             skip = skips.pop()  # (B, C_i, 2h, 2w)
             h = upsample_nearest_2x(h)  # (B, C_{i+1}, 2h, 2w): sides divide by the stride
-            h = stage(torch.cat([h, skip], dim=1), text)  # (B, C_i, 2h, 2w)
+            h = self._run(stage, torch.cat([h, skip], dim=1), text)  # (B, C_i, 2h, 2w)
         out = {
             "pixel_logits": self.pixel_logit(h)[:, 0],  # (B, H, W)
             "visible_logits": self.visible_logit(pooled)[:, 0],  # (B,)
@@ -194,6 +197,13 @@ class GoalHead(nn.Module):
         if self.category_logit is not None:
             out["category_logits"] = self.category_logit(h)[:, 0]  # (B, H, W)
         return out
+
+    def _run(self, stage: nn.Module, x: torch.Tensor, text: torch.Tensor) -> torch.Tensor:
+        """``stage(x, text)``, its activations recomputed in backward when training with
+        ``gradient_checkpointing`` (the same outputs and gradients, less memory)."""
+        if self.gradient_checkpointing and self.training and torch.is_grad_enabled():
+            return checkpoint(stage, x, text, use_reentrant=False)
+        return stage(x, text)
 
     def pixel_probability(self, outputs: dict[str, torch.Tensor]) -> torch.Tensor:
         """(B, H, W) probability that a pixel shows the goal instance: the instance output,
