@@ -23,8 +23,7 @@ def test_every_shipped_config_composes_and_validates(name):
 
 def test_recipe_specifics():
     _, rtx = load_config("config_rtx4060")
-    assert rtx.training.amp == "fp16" and rtx.model.head.gradient_checkpointing
-    assert rtx.model.encoders.gradient_checkpointing
+    assert rtx.training.amp == "fp16" and rtx.training.gradient_checkpointing
     assert rtx.training.batch_size * rtx.training.grad_accum == 32
     _, server = load_config("config_server")
     assert server.training.amp == "bf16" and server.training.compile

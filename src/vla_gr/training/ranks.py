@@ -5,12 +5,14 @@ contiguous share of the stage's episodes (:func:`~vla_gr.training.distributed.ra
 rank runs its share into a part of its own (``ranks/rank<r>.zarr``, ``ranks/rank<r>/``), then rank
 0 merges the parts, in episode order, into the product a single process would have written and
 the ranks wait for it. Every part resumes as a single-process stage does (the episodes it already
-holds are kept). Training stages use DDP instead (:mod:`vla_gr.train`, :mod:`.part_training`).
+holds are kept). ``shares.json`` in the stage's folder records which episodes each rank ran.
+Training stages use DDP instead (:mod:`vla_gr.train`, :mod:`.part_training`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import shutil
 from collections.abc import Callable
@@ -46,9 +48,27 @@ def collect_on_ranks(cfg, store: Path, parts: Path) -> None:
         collect(dataclasses.replace(cfg, collect=share))
     wait_for_ranks()
     if rank == 0:
-        _merge_stores(sorted(parts.glob("rank*.zarr")), store, wanted)
-        shutil.rmtree(parts, ignore_errors=True)
+        shares = {p.stem: EpisodeStore.open(p).episode_indices.tolist() for p in _parts(parts)}
+        _merge_stores([parts / f"{name}.zarr" for name in shares], store, wanted)
+        _record_shares(parts.parent, shares)
+        shutil.rmtree(parts, ignore_errors=True)  # the merged store holds every episode
     wait_for_ranks()
+
+
+def _parts(parts: Path) -> list[Path]:
+    """The ranks' parts in ``parts`` (``rank<r>.zarr`` or ``rank<r>/``), in rank order."""
+    found = parts.glob("rank*") if parts.is_dir() else []
+    return sorted(found, key=lambda p: int(p.name.removeprefix("rank").removesuffix(".zarr")))
+
+
+def _record_shares(folder: Path, shares: dict[str, list[int]]) -> None:
+    """``shares.json``: the episodes of each rank's part (merged with those already there: a
+    part removed after an earlier merge keeps its record)."""
+    path = folder / "shares.json"
+    record = json.loads(path.read_text()) if path.is_file() else {}
+    for name, episodes in shares.items():
+        record[name] = sorted(set(record.get(name, [])) | set(episodes))
+    path.write_text(json.dumps(record, indent=1))
 
 
 def _merge_stores(parts: list[Path], store: Path, wanted: range) -> None:
@@ -102,7 +122,14 @@ def rollout_on_ranks(cfg, out: Path, parts: Path, evaluate: Callable, merge: Cal
     wait_for_ranks()
     if rank == 0:
         whole = dataclasses.replace(e, output_dir=str(out), device=device)
-        shares = sorted(p for p in parts.glob("rank*") if p.is_dir())
+        shares = _parts(parts)
         metrics = merge(dataclasses.replace(cfg, eval=whole), shares)
+        _record_shares(parts.parent, {p.name: _row_episodes(p) for p in shares})
     wait_for_ranks()
     return metrics
+
+
+def _row_episodes(run: Path) -> list[int]:
+    """The episode indices of an eval run folder's rows."""
+    lines = (run / "episodes.jsonl").read_text().splitlines()
+    return [json.loads(line)["episode_index"] for line in lines if line.strip()]
