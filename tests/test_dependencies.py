@@ -23,7 +23,7 @@ SRC = ROOT / "src" / "vla_gr"
 #: Modules of another package that need a distribution of their own: module -> distribution.
 INDIRECT = {"torch.utils.tensorboard": "tensorboard"}
 #: Extras of optional features: extra -> the modules only that feature imports (lazily).
-OPTIONAL = {"wandb": {"wandb"}, "lerobot": {"pyarrow"}}
+OPTIONAL = {"wandb": {"wandb"}, "lerobot": {"pyarrow"}, "ray": {"ray"}}
 #: Extras of tools that run as commands or pytest plugins; the package imports none of them.
 TOOL_EXTRAS = {"dev"}
 #: What the shipped agent's instruction reader and sentence encoder import.

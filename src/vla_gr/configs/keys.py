@@ -32,6 +32,7 @@ EVAL_ALIASES = (
     "num_episodes",
     "first_episode",
     "workers",
+    "backend",
     "output_dir",
     "device",
 )

@@ -26,6 +26,19 @@ SPLITS = ("train", "val", "test")
 #: The agent shipped in the repository (paths are from the working directory): what ``vla-gr
 #: demo`` and ``vla-gr eval`` run when no agent is named.
 SHIPPED_CHECKPOINT = "checkpoints/vla_gr_cpu"
+#: Where ``vla-gr eval`` and ``vla-gr collect`` run episodes: worker processes on this machine,
+#: or Ray actors on a cluster (``pip install 'vla-gr[ray]'``; ``vla_gr.data.ray_workers``).
+BACKENDS = ("local", "ray")
+
+
+def check_backend(key: str, backend: str) -> None:
+    """ValueError naming ``key`` unless ``backend`` is one of :data:`BACKENDS` whose package
+    is installed (Ray, an optional extra, is looked for, not imported)."""
+    import importlib.util
+
+    check_choice(key, backend, BACKENDS)
+    if backend == "ray" and importlib.util.find_spec("ray") is None:
+        raise ValueError(f"{key}=ray needs Ray, which is not installed: pip install 'vla-gr[ray]'")
 
 
 @dataclass
@@ -83,6 +96,9 @@ class CollectConfig:
     num_episodes: int = 32  # episodes recorded
     first_episode: int = 0  # index of the first one in the split
     workers: int = 2  # processes, one env each
+    # where episodes run: local (worker processes here) | ray (Ray actors on a cluster)
+    backend: str = "local"
+    ray_address: str | None = None  # backend=ray: ray.init(address=...); None: a local cluster
     output: str = "data/expert_${collect.split}.zarr"  # the zarr store written
     mode: str = "refuse"  # what to do when the store exists: refuse | append | overwrite
     progress: bool = True  # a progress bar on stderr
@@ -92,6 +108,7 @@ class CollectConfig:
         check_positive("collect.num_episodes", self.num_episodes)
         check_positive("collect.first_episode", self.first_episode, allow_zero=True)
         check_positive("collect.workers", self.workers)
+        check_backend("collect.backend", self.backend)
         check_choice("collect.mode", self.mode, ("refuse", "append", "overwrite"))
 
 
@@ -153,6 +170,10 @@ class EvalConfig:
     num_episodes: int | None = None  # None: 10 of a split, or the whole episodes file
     first_episode: int = 0  # index of the first episode run
     workers: int = 1  # processes, one env and one agent each (same rows for any number)
+    # where episodes run: local (worker processes here) | ray (Ray actors on a cluster; the
+    # same rows, written here in episode order, resumable)
+    backend: str = "local"
+    ray_address: str | None = None  # backend=ray: ray.init(address=...); None: a local cluster
     output_dir: str | None = None  # None: outputs/eval/<agent>-<split>-<timestamp>
     device: str = "cpu"  # torch device of the agent
     progress: bool = True  # a progress bar on stderr
@@ -172,6 +193,7 @@ class EvalConfig:
         check_positive("eval.first_episode", self.first_episode, allow_zero=True)
         if self.workers < 1:
             raise ValueError(f"eval.workers={self.workers} must be >= 1")
+        check_backend("eval.backend", self.backend)
         check_positive("eval.goal_seen_pixels", self.goal_seen_pixels)
         check_positive("eval.stuck_steps", self.stuck_steps)
         check_positive("eval.stuck_radius", self.stuck_radius)

@@ -3,7 +3,9 @@
 Episodes run in ``collect.workers`` worker processes (multiprocessing 'spawn': MuJoCo GL
 contexts do not survive fork) and are written in episode order by the main process, one
 committed episode at a time (see ``data.store``), so an interrupted run loses at most the
-episodes in flight. The expert may execute DART-noised actions (``expert.noise_std``,
+episodes in flight. With ``collect.backend=ray`` the workers are Ray actors on a cluster
+(``collect.ray_address``; :mod:`vla_gr.data.ray_workers`) and the records come back to this
+process, which writes the store. The expert may execute DART-noised actions (``expert.noise_std``,
 ``expert.noise_prob``); the store keeps its noise-free label for the same observation.
 """
 
@@ -170,13 +172,30 @@ def map_in_workers(
 
 
 def iter_expert_episodes(
-    indices: Sequence[int], env_kwargs: dict, expert_kwargs: dict, seed: int = 0, workers: int = 1
+    indices: Sequence[int],
+    env_kwargs: dict,
+    expert_kwargs: dict,
+    seed: int = 0,
+    workers: int = 1,
+    backend: str = "local",
+    ray_address: str | None = None,
 ) -> Iterator[EpisodeRecord]:
     """Records of episodes ``indices``, in that order, from ``workers`` spawned processes;
     an index whose house cannot host an episode (``NoEpisodeError``) comes back as the int.
 
-    With ``workers == 1`` everything runs in this process.
+    With ``workers == 1`` everything runs in this process. ``backend="ray"``: the workers are
+    Ray actors on the cluster at ``ray_address`` (:func:`~vla_gr.data.ray_workers.map_on_ray`),
+    whose records come back here.
     """
+    if backend == "ray":
+        from vla_gr.data.ray_workers import map_on_ray, portable_env_kwargs
+
+        init_args = (portable_env_kwargs(env_kwargs), expert_kwargs, seed)
+        yield from map_on_ray(
+            _init_worker, init_args, _work, indices, workers, _close_worker, ray_address,
+            "collect",
+        )  # fmt: skip
+        return
     init_args = (env_kwargs, expert_kwargs, seed)
     yield from map_in_workers(_init_worker, init_args, _work, indices, workers, _close_worker)
 
@@ -259,7 +278,7 @@ def collect(cfg) -> dict:
     frames, metrics = 0, []
     skipped: list[int] = []
     records: Iterable[EpisodeRecord | int] = iter_expert_episodes(
-        todo, env_kwargs, expert_kwargs, cfg.seed, c.workers
+        todo, env_kwargs, expert_kwargs, cfg.seed, c.workers, c.backend, c.ray_address
     )
     bar = tqdm(total=len(todo), desc=f"collect {c.split}", unit="ep", disable=not c.progress)
     with bar:
