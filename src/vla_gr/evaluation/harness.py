@@ -201,6 +201,7 @@ def evaluate(cfg, agent: str | None = None) -> dict:
         rows, header, seconds, cfg.eval.workers, ran=len(todo) - len(no_episode),
         machine=describe_machine(),
     )  # fmt: skip
+    metrics["timing"]["backend"] = cfg.eval.backend  # where the episodes ran (local, ray)
     # (index -> why), so that "num_episodes" above and "episodes" in "metrics" add up
     metrics["skipped_episodes"] = {str(k): v for k, v in sorted(no_episode.items())}
     (out_dir / "metrics.json").write_text(json.dumps(metrics, indent=1))

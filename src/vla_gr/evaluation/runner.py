@@ -344,9 +344,16 @@ def iter_episode_rows(
     An index whose house cannot host an episode gives ``{"episode_index", "no_episode"}``.
 
     Every worker, this process included, runs torch on one thread: the same arithmetic,
-    so the rows do not depend on ``workers``.
+    so the rows do not depend on ``workers``. With ``eval.backend=ray`` the workers are Ray
+    actors running the same functions (:mod:`vla_gr.evaluation.ray_rows`).
     """
     from vla_gr.data.collect import map_in_workers
+
+    if cfg.eval.backend == "ray":
+        from vla_gr.evaluation.ray_rows import ray_episode_rows
+
+        yield from ray_episode_rows(cfg, agent_name, env_kwargs, indices, workers)
+        return
 
     threads = torch.get_num_threads()
 
