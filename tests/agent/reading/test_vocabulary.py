@@ -72,7 +72,7 @@ def test_three_letter_mistypes_and_chat_words_are_left_alone(table, word):
     assert table.repair(word) == word
 
 
-@pytest.mark.parametrize("word", ["khaki", "russet", "golden", "beige", "teal"])
+@pytest.mark.parametrize("word", ["khaki", "russet", "golden", "beige", "teal", "cream", "slate"])
 def test_colours_wordnet_knows_beyond_the_eight_are_other_colours(table, word):
     assert word in table.other_colours and table.look_up([word], "colour") is None
 

@@ -88,7 +88,8 @@ RELATION_WORDS = _words(
     "facing opposite right behind between with"
 )
 NEGATION_WORDS = _words(
-    "not no isn't aren't wasn't don't doesn't never except but without other unless nor neither"
+    "not no isn't aren't wasn't don't doesn't never except but without other unless nor neither "
+    "another different skip avoid"
 )
 SEQUENCE_WORDS = frozenset(
     ["then", "after", "afterwards", "first", "next", "later", "finally", "before", "also"]
@@ -113,6 +114,9 @@ SHORT_FORMS: dict[str, str] = {
     "tho": "though", "thx": "thanks", "ty": "thanks", "abt": "about",
     "plz": "please", "pls": "please", "cud": "could", "wud": "would",
 }  # fmt: skip
+#: Everyday colour names WordNet files under no colour ("cream", "mustard", "slate"): said of
+#: a goal, colours outside the eight, like WordNet's own.
+OTHER_COLOUR_NAMES = _words("cream mustard lime mint plum sand fuchsia champagne slate denim mocha")
 #: Words of chat and texting that are words in their own right, never a slip of another:
 #: "lol" is no "loo", "omg" no "mug".
 CHAT_WORDS = _words(
@@ -249,7 +253,9 @@ class WordTable:
             for lemma in synset.lemma_names()
             if lemma.isalpha() and lemma.islower() and (lemma,) not in self.colours
         }  # fmt: skip
-        # ... and the colour adjectives ("khaki", "golden", "russet": similar to chromatic)
+        # ... the colour adjectives ("khaki", "golden", "russet": similar to chromatic), and
+        # everyday names WordNet files elsewhere
+        self.other_colours |= OTHER_COLOUR_NAMES
         self.other_colours |= {
             lemma for synset in wn.synset("chromatic.a.03").similar_tos()
             for lemma in synset.lemma_names()
