@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from vla_gr.training.agent_stage import build_agent_from, finish_part
+from vla_gr.training.distributed import process_rank, rank_share
 from vla_gr.training.part_training import ON_CPU, Compute
 
 log = logging.getLogger(__name__)
@@ -41,7 +42,9 @@ def train_instruction_reader(
     """Train the tagger on ``count`` generated requests, calibrate it on ``dev_sets`` and write
     the agent to ``out``; returns the summary (training loss; tag accuracy on fresh generated
     requests; the development scores at the chosen temperature and threshold). The tagger trains
-    on ``compute``'s device and precision, data parallel under torchrun (rank 0 writes)."""
+    on ``compute``'s device and precision; under torchrun each rank encodes and draws from its
+    own share of the requests (data parallel), and rank 0 alone measures, calibrates and writes
+    (the other ranks return ``corpus`` and ``steps``)."""
     from vla_gr.agent.reading.vocabulary import word_table
     from vla_gr.training.reader_training import (
         calibrate_reader,
@@ -62,8 +65,13 @@ def train_instruction_reader(
     policy.requires_grad_(False)
     c = reader.config
     grammar = RequestGrammar(word_table(), c.goal_categories, c.categories, c.room_types)
-    corpus = encode_corpus(reader, grammar.batch(count, seed))
-    losses = fit_tagger(reader, corpus, steps, batch_size, lr, seed, compute)
+    rank, world = process_rank()
+    share = rank_share(0, count, rank, world)  # the requests this rank encodes
+    requests = grammar.batch(count, seed)[share.start : share.stop]
+    losses = fit_tagger(reader, encode_corpus(reader, requests), steps, batch_size, lr, seed,
+                        compute)  # fmt: skip
+    if rank != 0:
+        return {"corpus": len(requests), "steps": steps}
     held = encode_corpus(reader, grammar.batch(max(count // 10, 100), seed + 1))
     summary = {
         "corpus": count,
