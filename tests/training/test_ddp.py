@@ -13,7 +13,7 @@ from safetensors.torch import load_file, save_file
 from torch.nn.parallel import DistributedDataParallel
 
 from tests.helpers import fake_batch, split_batch, tiny_model_config, tiny_policy
-from vla_gr.training.distributed import ResumableSampler
+from vla_gr.training.distributed import ResumableSampler, rank_share
 from vla_gr.training.step import train_step
 
 WORLD = 2
@@ -93,3 +93,13 @@ def test_resumable_sampler_partitions_and_resumes():
     assert list(s) == shares[1]  # the offset applies to one pass only
     s.set_position(epoch=1)
     assert list(s) != shares[1] and sorted(list(s)) != []  # another epoch, another order
+
+
+def test_rank_shares_are_contiguous_disjoint_and_cover_every_item():
+    for count, world in [(10, 3), (2, 2), (1, 2), (0, 4), (7, 1)]:
+        shares = [rank_share(5, count, r, world) for r in range(world)]
+        assert [k for s in shares for k in s] == list(range(5, 5 + count))  # in rank order
+        assert max(map(len, shares)) - min(map(len, shares)) <= 1
+    assert rank_share(0, 10, 0, 3) == range(0, 4) and rank_share(0, 10, 2, 3) == range(7, 10)
+    with pytest.raises(ValueError, match="rank=2 must be in"):
+        rank_share(0, 4, 2, 2)

@@ -229,3 +229,29 @@ def test_decoder_upsampling_repeats_each_value_into_a_2x2_block():
     for dr in (0, 1):
         for dc in (0, 1):
             assert torch.equal(up[:, :, dr::2, dc::2], h)
+
+
+def _stage_calls_and_gradients(on: bool) -> tuple[GoalHead, list[int], dict]:
+    """A seeded head with checkpointing ``on``: (it, the calls of its first down stage,
+    the gradients of one backward)."""
+    rgb, depth = _frames()
+    head = _head()
+    head.gradient_checkpointing = on
+    calls = [0]
+    head.down[0].register_forward_pre_hook(lambda *_: calls.__setitem__(0, calls[0] + 1))
+    out = head(rgb, depth, ["find the red chair", "go to the bed"])
+    (out["pixel_logits"].square().mean() + out["visible_logits"].sum()).backward()
+    return head, calls, {n: p.grad for n, p in head.named_parameters() if p.grad is not None}
+
+
+def test_gradient_checkpointing_recomputes_each_stage_with_the_same_gradients():
+    _, plain_calls, plain = _stage_calls_and_gradients(False)
+    head, calls, grads = _stage_calls_and_gradients(True)
+    assert (plain_calls[0], calls[0]) == (1, 2)  # checkpointed: the stage runs again in backward
+    assert grads.keys() == plain.keys()
+    for name, grad in plain.items():
+        torch.testing.assert_close(grads[name], grad, msg=name)
+    calls[0] = 0
+    with torch.no_grad():  # inference never recomputes
+        head.eval()(*_frames(), ["find the red chair", "go to the bed"])
+    assert calls[0] == 1
