@@ -58,9 +58,15 @@ class EnvConfig:
     scene_cache_size: int = 4  # compiled houses kept per env (LRU)
     depth_noise_std: float = 0.0  # robustness: Gaussian depth noise per pixel (m); 0 = off
     actuation_noise: float = 0.0  # robustness: relative noise per step on v and w; 0 = off
+    # how houses look (walls, floors, light, unnamed furniture finishes; never an object's
+    # named colour): default (the training world) | loft (held out; envs/house_style.py)
+    house_style: str = "default"
 
     def __post_init__(self) -> None:
+        from vla_gr.envs.house_style import HOUSE_STYLES
+
         check_choice("env.split", self.split, SPLITS)
+        check_choice("env.house_style", self.house_style, HOUSE_STYLES)
         check_positive("env.depth_noise_std", self.depth_noise_std, allow_zero=True)
         check_positive("env.actuation_noise", self.actuation_noise, allow_zero=True)
         check_positive("env.max_depth", self.max_depth)

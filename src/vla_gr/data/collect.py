@@ -42,6 +42,7 @@ def env_kwargs_from_config(cfg, split: str, semantic: bool = True) -> dict:
         "scene_cache_size": cfg.env.scene_cache_size,
         "depth_noise_std": cfg.env.depth_noise_std,
         "actuation_noise": cfg.env.actuation_noise,
+        "house_style": cfg.env.house_style,
     }
     if cfg.env.episodes:
         kwargs["episodes"] = cfg.env.episodes
@@ -262,6 +263,7 @@ def collect(cfg) -> dict:
         "max_episode_steps": cfg.env.max_episode_steps,
         "success_distance": cfg.env.success_distance,
         "expert": expert_kwargs,
+        **({"house_style": cfg.env.house_style} if cfg.env.house_style != "default" else {}),
         "seed": cfg.seed,
         "vla_gr_version": __version__,
     }

@@ -46,6 +46,9 @@ class Geom:
     size: tuple[float, ...]
     pos: tuple[float, float, float]
     rgba: tuple[float, float, float, float]
+    # a part that carries no named colour (``house_style.FINISHES``): a house style may
+    # draw it in another material; None = the object's named colour (never restyled)
+    finish: str | None = None
 
 
 def color_rgba(name: str) -> tuple[float, float, float, float]:
@@ -92,11 +95,11 @@ def sample_dimensions(category: str, rng: np.random.Generator) -> tuple[float, f
 
 
 def _legs(hx: float, hy: float, top: float, inset: float, radius: float, rgba) -> list[Geom]:
-    """Four cylindrical legs from the floor to ``top`` at the footprint's corners."""
+    """Four cylindrical legs (finish ``legs``) from the floor to ``top`` at the corners."""
     legs = []
     for i, (sx, sy) in enumerate(((-1, -1), (1, -1), (1, 1), (-1, 1))):
         pos = (sx * (hx - inset), sy * (hy - inset), top / 2)
-        legs.append(Geom(f"leg{i}", "cylinder", (radius, top / 2), pos, rgba))
+        legs.append(Geom(f"leg{i}", "cylinder", (radius, top / 2), pos, rgba, "legs"))
     return legs
 
 
@@ -124,10 +127,12 @@ def _sofa(hx, hy, h, c) -> list[Geom]:
 def _bed(hx, hy, h, c) -> list[Geom]:
     return [
         Geom("frame", "box", (hx, hy, 0.15), (0.0, 0.0, 0.15), shade(c, 0.6)),
-        Geom("mattress", "box", (hx - 0.03, hy - 0.06, 0.1), (0.0, 0.03, 0.4), _LINEN),
+        Geom("mattress", "box", (hx - 0.03, hy - 0.06, 0.1), (0.0, 0.03, 0.4), _LINEN, "linen"),
         Geom("blanket", "box", (hx - 0.02, hy * 0.6, 0.03), (0.0, hy * 0.38, 0.5), c),
         Geom("headboard", "box", (hx, 0.04, h / 2), (0.0, -hy + 0.04, h / 2), shade(c, 0.5)),
-        Geom("pillow", "ellipsoid", (hx * 0.6, 0.14, 0.06), (0.0, -hy + 0.3, 0.54), _LINEN),
+        Geom(
+            "pillow", "ellipsoid", (hx * 0.6, 0.14, 0.06), (0.0, -hy + 0.3, 0.54), _LINEN, "linen"
+        ),
     ]
 
 
@@ -141,7 +146,9 @@ def _toilet(hx, hy, h, c) -> list[Geom]:
         Geom("seat", "cylinder", (r, 0.012), (0.0, bowl_y, 0.412), shade(c, 0.85)),
         Geom("tank", "box", (hx - 0.01, 0.09, tank_half), (0.0, -hy + 0.09, 0.4 + tank_half), c),
         Geom("riser", "box", (0.1, 0.1, 0.2), (0.0, -hy + 0.1, 0.2), c),
-        Geom("flush", "box", (0.03, 0.01, 0.01), (hx * 0.5, -hy + 0.185, h - 0.06), _METAL),
+        Geom(
+            "flush", "box", (0.03, 0.01, 0.01), (hx * 0.5, -hy + 0.185, h - 0.06), _METAL, "metal"
+        ),
     ]
 
 
@@ -151,7 +158,7 @@ def _tv_monitor(hx, hy, h, c) -> list[Geom]:
     screen_z = h - screen_half
     return [
         Geom("stand", "box", (hx, hy, stand_half), (0.0, 0.0, stand_half), c),
-        Geom("neck", "box", (0.04, 0.03, 0.06), (0.0, -0.05, 2 * stand_half + 0.06), _DARK),
+        Geom("neck", "box", (0.04, 0.03, 0.06), (0.0, -0.05, 2 * stand_half + 0.06), _DARK, "dark"),
         Geom("frame", "box", (hx * 0.92, 0.025, screen_half), (0.0, -0.05, screen_z), c),
         Geom(
             "screen",
@@ -159,6 +166,7 @@ def _tv_monitor(hx, hy, h, c) -> list[Geom]:
             (hx * 0.86, 0.004, screen_half - 0.04),
             (0.0, -0.021, screen_z),
             _SCREEN,
+            "screen",
         ),
     ]
 
@@ -169,10 +177,15 @@ def _plant(hx, hy, h, c) -> list[Geom]:
     crown_r, leaf_r, top_r = radius * 0.75, radius * 0.5, radius * 0.55
     crown_z = max(h - 2 * top_r - crown_r * 0.3, 2 * pot_half + crown_r)
     geoms = [
-        Geom("pot", "cylinder", (pot_r, pot_half), (0.0, 0.0, pot_half), _POT),
-        Geom("soil", "cylinder", (pot_r * 0.9, 0.01), (0.0, 0.0, 2 * pot_half), _DARK),
+        Geom("pot", "cylinder", (pot_r, pot_half), (0.0, 0.0, pot_half), _POT, "pot"),
+        Geom("soil", "cylinder", (pot_r * 0.9, 0.01), (0.0, 0.0, 2 * pot_half), _DARK, "dark"),
         Geom(
-            "stem", "cylinder", (0.02, (crown_z - 0.3) / 2), (0.0, 0.0, (crown_z + 0.3) / 2), _WOOD
+            "stem",
+            "cylinder",
+            (0.02, (crown_z - 0.3) / 2),
+            (0.0, 0.0, (crown_z + 0.3) / 2),
+            _WOOD,
+            "wood",
         ),
         Geom("foliage", "sphere", (crown_r,), (0.0, 0.0, crown_z), c),
         Geom("top", "sphere", (top_r,), (0.0, 0.0, h - top_r), shade(c, 1.15)),
@@ -199,7 +212,7 @@ def _cabinet(hx, hy, h, c) -> list[Geom]:
     handle_z = min(h * 0.55, 1.0)
     for i, sx in enumerate((-1.0, 1.0)):
         pos = (sx * min(0.06, hx * 0.3), hy - 0.01, handle_z)
-        geoms.append(Geom(f"handle{i}", "box", (0.012, 0.01, 0.07), pos, _METAL))
+        geoms.append(Geom(f"handle{i}", "box", (0.012, 0.01, 0.07), pos, _METAL, "metal"))
     return geoms
 
 

@@ -24,6 +24,7 @@ from vla_gr.envs.floorplan import (
 )
 from vla_gr.envs.furniture import collision_geom, object_geoms
 from vla_gr.envs.geodesic import ROBOT_RADIUS, traversable_cells
+from vla_gr.envs.house_style import Texture, house_look
 from vla_gr.envs.placement import Placed, place_furniture
 from vla_gr.envs.scene import Door, House, ObjectInstance, Room
 from vla_gr.geometry import GridSpec, disk_kernel
@@ -285,17 +286,42 @@ def _wall_xml(box: WallBox, material: str) -> str:
     )
 
 
-def house_to_mjcf(house: House, robot_xml: str = "", robot_assets: str = "") -> str:
+def _texture_xml(tex: Texture) -> str:
+    marks = (
+        f' mark="{tex.mark}" markrgb="{_f(*tex.markrgb)}" random="{_f(tex.random)}"'
+        if tex.mark != "none"
+        else ""
+    )
+    return (
+        f'    <texture name="{tex.name}" type="2d" builtin="{tex.builtin}" rgb1="{_f(*tex.rgb1)}" '
+        f'rgb2="{_f(*tex.rgb2)}" width="{tex.size}" height="{tex.size}"{marks}/>'
+    )
+
+
+def _material_xml(name: str, rgba, specular: float | None, tex: Texture | None) -> str:
+    spec = f' specular="{_f(specular)}"' if specular is not None else ""
+    texture = (
+        f' texture="{tex.name}" texrepeat="{_f(tex.repeat, tex.repeat)}" texuniform="true"'
+        if tex is not None
+        else ""
+    )
+    return f'    <material name="{name}" rgba="{_f(*rgba)}"{spec}{texture}/>'
+
+
+def house_to_mjcf(
+    house: House, robot_xml: str = "", robot_assets: str = "", house_style: str = "default"
+) -> str:
     """Complete MJCF model of ``house``; ``robot_xml`` (a <body>) goes into <worldbody>.
 
     Geom naming: furniture ``obj{id}_<part>`` inside body ``obj{id}``; walls ``wall_...``;
     floor ``floor``. Static collision geoms use contype=1 conaffinity=0, so they collide with
     a robot of contype=1 conaffinity=1 but never with each other; visual parts do not collide.
     Each piece has an invisible box ``obj{id}_collision`` (group 3) filling its footprint up to
-    robot height, matching the occupancy grid.
+    robot height, matching the occupancy grid. ``house_style`` (:mod:`.house_style`) sets the
+    walls', floors', light's and unnamed furniture parts' look; ``default`` is the training world.
     """
-    wall_rgba = house.meta.get("wall_rgba") or [[0.85, 0.85, 0.82, 1.0]] * len(house.rooms)
-    floor_rgba = house.meta.get("floor_rgba") or [[0.55, 0.45, 0.35, 1.0]] * len(house.rooms)
+    look = house_look(house, house_style)
+    wall_rgba, floor_rgba = look.wall_rgba, look.floor_rgba
     t = WALL_THICKNESS
     x0 = min(r.x0 for r in house.rooms) - t
     y0 = min(r.y0 for r in house.rooms) - t
@@ -311,7 +337,8 @@ def house_to_mjcf(house: House, robot_xml: str = "", robot_assets: str = "") -> 
         f'  <statistic center="{_f(cx, cy, 1.0)}" extent="{_f(extent)}"/>',
         "  <visual>",
         '    <quality shadowsize="0" offsamples="0" numslices="8" numstacks="4"/>',
-        '    <headlight ambient="0.45 0.45 0.45" diffuse="0.35 0.35 0.35" specular="0 0 0"/>',
+        f'    <headlight ambient="{_f(*[look.headlight_ambient] * 3)}" '
+        f'diffuse="{_f(*[look.headlight_diffuse] * 3)}" specular="0 0 0"/>',
         # map znear/zfar are relative to the extent: near 5 cm, far 40 m in absolute terms.
         f'    <map znear="{_f(0.05 / extent)}" zfar="{_f(40.0 / extent)}"/>',
         "  </visual>",
@@ -324,18 +351,20 @@ def house_to_mjcf(house: House, robot_xml: str = "", robot_assets: str = "") -> 
         "  </default>",
         "  <asset>",
     ]
+    lines += [_texture_xml(x) for x in (look.wall_texture, look.floor_texture) if x is not None]
+    wall_tex, floor_tex = look.wall_texture, look.floor_texture
     for i, (w, fl) in enumerate(zip(wall_rgba, floor_rgba)):
-        lines.append(f'    <material name="wall_mat{i}" rgba="{_f(*w)}" specular="0.1"/>')
-        lines.append(f'    <material name="floor_mat{i}" rgba="{_f(*fl)}" specular="0.2"/>')
-    lines.append('    <material name="wall_ext" rgba="0.8 0.8 0.78 1" specular="0.1"/>')
-    lines.append('    <material name="floor_base" rgba="0.35 0.35 0.35 1"/>')
+        lines.append(_material_xml(f"wall_mat{i}", w, look.wall_specular, wall_tex))
+        lines.append(_material_xml(f"floor_mat{i}", fl, look.floor_specular, floor_tex))
+    lines.append(_material_xml("wall_ext", look.wall_ext_rgba, look.wall_specular, wall_tex))
+    lines.append(_material_xml("floor_base", look.floor_base_rgba, None, None))
     if robot_assets:
         lines.append(robot_assets)
     lines += [
         "  </asset>",
         "  <worldbody>",
         '    <light name="sun" directional="true" castshadow="false" pos="0 0 5" '
-        'dir="0.3 0.2 -1" diffuse="0.5 0.5 0.5" specular="0 0 0"/>',
+        f'dir="{_f(*look.sun_dir)}" diffuse="{_f(*[look.sun_diffuse] * 3)}" specular="0 0 0"/>',
         f'    <geom name="floor" class="static" type="box" '
         f'size="{_f((x1 - x0) / 2, (y1 - y0) / 2, 0.05)}" '
         f'pos="{_f(cx, cy, -0.05)}" material="floor_base"/>',
@@ -360,9 +389,10 @@ def house_to_mjcf(house: House, robot_xml: str = "", robot_assets: str = "") -> 
             f'size="{_f(*col.size)}" pos="{_f(*col.pos)}"/>'
         )
         for g in object_geoms(obj):
+            rgba = look.finish(g.finish, g.rgba)  # a named colour is never restyled
             lines.append(
                 f'      <geom name="{obj.body_name}_{g.suffix}" class="visual" type="{g.kind}" '
-                f'size="{_f(*g.size)}" pos="{_f(*g.pos)}" rgba="{_f(*g.rgba)}"/>'
+                f'size="{_f(*g.size)}" pos="{_f(*g.pos)}" rgba="{_f(*rgba)}"/>'
             )
         lines.append("    </body>")
     if robot_xml:

@@ -20,6 +20,9 @@ Collision rule: a step is a collision when the base touched something during the
 and moved less than half of the commanded distance (a blocked step; sliding along a wall
 at a shallow angle is not a collision).
 
+Look: ``house_style`` (:mod:`~vla_gr.envs.house_style`) changes how every house looks, never
+what is in it or any label: ``default`` is the training world, ``loft`` a held-out look.
+
 Episode selection: ``reset(options={"episode": k})`` runs episode ``k`` of the split (or of the
 ``episodes`` file); ``options={"episode": spec}`` runs an :class:`EpisodeSpec`.
 Otherwise the episode is the next of the env's seeded order (:mod:`~vla_gr.envs.episode_order`):
@@ -65,6 +68,7 @@ from vla_gr.envs.episodes import (
 )
 from vla_gr.envs.geodesic import distance_at, traversable_cells
 from vla_gr.envs.grounding import ground
+from vla_gr.envs.house_style import check_house_style
 from vla_gr.envs.instruction_space import InstructionSpace
 from vla_gr.envs.metrics import EpisodeMeasures
 from vla_gr.envs.rendering import RGBDRenderer, make_gl_context, tune_model_for_speed
@@ -99,11 +103,19 @@ class _Scene:
         self.renderers.clear()
 
 
-def compile_scene(house: House, image_size: int, control_hz: float, max_depth: float) -> _Scene:
-    """Build the MuJoCo model of ``house`` with the robot, tuned for fast rendering."""
+def compile_scene(
+    house: House,
+    image_size: int,
+    control_hz: float,
+    max_depth: float,
+    house_style: str = "default",
+) -> _Scene:
+    """Build the MuJoCo model of ``house`` with the robot, tuned for fast rendering, drawn in
+    ``house_style`` (:mod:`~vla_gr.envs.house_style`)."""
     from vla_gr.envs.house import house_to_mjcf
 
-    xml = house_to_mjcf(house, robot_xml=rb.robot_body_xml(image_size, image_size))
+    robot = rb.robot_body_xml(image_size, image_size)
+    xml = house_to_mjcf(house, robot_xml=robot, house_style=house_style)
     spec = mujoco.MjSpec.from_string(xml)
     rb.add_robot_actuators(spec)
     model = spec.compile()
@@ -144,6 +156,7 @@ class ObjectNavEnv(gym.Env):
         depth_noise_std: float = 0.0,
         actuation_noise: float = 0.0,
         sub_env: tuple[int, int] = (0, 1),
+        house_style: str = "default",
     ) -> None:
         if split not in ("train", "val", "test"):
             raise ValueError(f"split={split!r} is not valid; choose one of train, val, test")
@@ -178,6 +191,8 @@ class ObjectNavEnv(gym.Env):
         self.episodes_per_scene = int(episodes_per_scene)
         self.scene_cache_size = int(scene_cache_size)
         self.render_mode = render_mode
+        # how houses look (walls, floors, light, unnamed finishes); never geometry or labels
+        self.house_style = check_house_style(house_style)
         # Robustness noise (off by default), drawn from ``np_random``, which each reset of an
         # episode k seeds from (k, seed): the episode replays its noise.
         self.depth_noise_std = float(depth_noise_std)  # metres, Gaussian, per pixel
@@ -461,7 +476,9 @@ class ObjectNavEnv(gym.Env):
 
             house = generate_house(spec.scene_seed, num_rooms=spec.num_rooms, clutter=spec.clutter)
         self._fresh_house = None
-        scene = compile_scene(house, self.image_size, self.control_hz, self.max_depth)
+        scene = compile_scene(
+            house, self.image_size, self.control_hz, self.max_depth, self.house_style
+        )
         self._scenes[key] = scene
         while len(self._scenes) > self.scene_cache_size:
             _, old = self._scenes.popitem(last=False)  # least recently used

@@ -88,6 +88,8 @@ def run_header(cfg, agent: str, source: str, indices: Sequence[int]) -> dict:
             "actuation_noise": env.actuation_noise,
             "num_rooms": env.num_rooms,
             "clutter": env.clutter,
+            # recorded when not the default, so runs made before styles existed still resume
+            **({"house_style": env.house_style} if env.house_style != "default" else {}),
         },
         "thresholds": {
             "goal_seen_pixels": e.goal_seen_pixels,

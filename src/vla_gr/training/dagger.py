@@ -74,6 +74,7 @@ def train_run(run_dir: str | Path) -> tuple[dict, list[dict], dict]:
         )
     env_keys = ("image_size", "control_hz", "max_episode_steps", "success_distance")
     env_kwargs = {k: header["env"][k] for k in env_keys} | {"split": "train", "semantic": True}
+    env_kwargs["house_style"] = header["env"].get("house_style", "default")  # the run's look
     return header, rows, env_kwargs
 
 
