@@ -1,18 +1,20 @@
-"""The 8 GB consumer-GPU recipe (``config_rtx4060``) trained on CUDA for a few optimizer steps.
+"""The 8 GB consumer-GPU recipe (``config_rtx4060``): its goal-head stage on CUDA for a few steps.
 
     python benchmarks/bench_gpu_recipe.py                      # fp16 (the recipe), fp32, bf16
     python benchmarks/bench_gpu_recipe.py --steps 20 --warmup 3 --amp fp16 none
     python benchmarks/bench_gpu_recipe.py --device cpu --steps 2 --warmup 1 --amp none \
         training.grad_accum=1 training.num_workers=0          # smoke run of the script itself
 
-Runs the library's own entry point (``load_config`` + ``vla_gr.train.train``) on a synthetic
-episode store of the recipe's image size (``write_synthetic_store``), with
-``model.encoders.text_encoder=hashed`` (the recipe's frozen MiniLM needs downloaded weights;
-the hashed encoder changes the text tower only, not the vision / fusion / head that dominate
-memory). Everything else is the recipe: micro-batch 2 x accumulation 16, gradient
-checkpointing, fused AdamW, EMA, data loader workers; validation and a checkpoint run once, at
-the last step. ``--amp`` runs the recipe once per mode (``fp16``: autocast + GradScaler, as
-shipped; ``none``: fp32; ``bf16``: autocast without a scaler).
+Runs the library's own training loop (``load_config`` + ``vla_gr.train.train``, what the
+recipe's ``goal_head`` and ``round1`` stages run) on a synthetic episode store of the recipe's
+image size (``write_synthetic_store``: frames with goal and distractor masks), with
+``model.goal_head.text_encoder=hashed`` (the recipe's frozen MiniLM needs downloaded weights;
+the hashed encoder changes the text tower only, not the U-Net that dominates memory). Everything
+else is the recipe: the dual-system agent's goal head at 128 px, micro-batch 16 x accumulation
+2, gradient checkpointing of the goal head's stages, fused AdamW, EMA, data loader workers;
+validation and a checkpoint run once, at the last step. ``--amp`` runs the recipe once per mode
+(``fp16``: autocast + GradScaler, as shipped; ``none``: fp32; ``bf16``: autocast without a
+scaler).
 
 Per mode it records, around each ``train_step`` the loop calls: its seconds (CUDA-synchronised),
 the wall seconds from one step's start to the next (data loading and augmentation included),
@@ -108,7 +110,7 @@ def one_mode(amp: str, args, store: Path, runs: Path, device: torch.device) -> d
     """Train the recipe with ``training.amp=amp`` for ``warmup + steps`` optimizer steps."""
     total = args.warmup + args.steps
     overrides = [
-        "model.encoders.text_encoder=hashed",
+        "model.goal_head.text_encoder=hashed",
         f"training.device={device.type}",
         f"training.amp={amp}",
         f"training.steps={total}",
@@ -279,7 +281,7 @@ def markdown(report: dict) -> str:
         "",
         f"Synthetic store: {report['store']['episodes']} episodes x {report['store']['length']} "
         f"steps of {report['store']['image_size']}^2 frames; "
-        "`model.encoders.text_encoder=hashed` (no MiniLM weights); every other setting is the "
+        "`model.goal_head.text_encoder=hashed` (no MiniLM weights); every other setting is the "
         "recipe's (with the overrides in the command). Peak memory is PyTorch's "
         "max_memory_allocated / max_memory_reserved over the whole run (model construction, "
         "the final validation and checkpoint included); the CUDA context adds a few hundred MiB "
@@ -317,7 +319,7 @@ def main() -> None:
     default = "bench_gpu_recipe" if device.type == "cuda" else "bench_gpu_recipe_cpu_smoke"
     out = args.out or RESULTS / default
     out.parent.mkdir(parents=True, exist_ok=True)
-    _, cfg = load_config(CONFIG, ["model.encoders.text_encoder=hashed"])
+    _, cfg = load_config(CONFIG, ["model.goal_head.text_encoder=hashed"])
     report = {
         "config": CONFIG,
         "device": str(device),
