@@ -197,3 +197,15 @@ def test_an_address_where_no_cluster_answers_is_one_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert f"eval.ray_address=127.0.0.1:{port}: no Ray cluster answers there" in err, err
     assert len(err.splitlines()) == 1
+
+
+def test_no_more_workers_than_the_cluster_holds_at_once(caplog):
+    """An actor the cluster cannot place would hold up the episodes handed to it."""
+    from vla_gr.data.ray_workers import _workers_that_fit
+    from vla_gr.errors import ConfigError
+
+    assert _workers_that_fit({"CPU": 4.0}, 2, 0.0, "eval") == 2
+    assert _workers_that_fit({"CPU": 4.0, "GPU": 1.0}, 3, 1.0, "eval") == 1
+    assert "holds 1 workers at once, not 3" in caplog.text
+    with pytest.raises(ConfigError, match="eval.backend=ray: the Ray cluster has 2 CPU, 0 GPU"):
+        _workers_that_fit({"CPU": 2.0}, 2, 1.0, "eval")

@@ -112,12 +112,14 @@ def map_on_ray(
     close: Callable,
     address: str | None = None,
     section: str = "eval",
+    gpus: float = 0.0,
 ) -> Iterator:
     """``work(item)`` for each of ``items``, yielded in that order, from ``workers`` Ray actors
-    (fewer when the cluster has fewer CPUs) on the cluster at ``address`` (None: a local
-    cluster started for this call).
+    (fewer when the cluster cannot hold them all at once) on the cluster at ``address`` (None:
+    a local cluster started for this call).
 
-    Each actor runs ``init(*init_args)`` once (its env, its agent) and ``close()`` at the end;
+    Each actor holds one CPU (and ``gpus`` GPUs: Ray sets its ``CUDA_VISIBLE_DEVICES``), runs
+    ``init(*init_args)`` once (its env, its agent) and ``close()`` at the end;
     ``init``, ``work`` and ``close`` must be module-level functions (Ray pickles them by
     name). ``section`` names the config section in errors (``eval``, ``collect``).
     """
@@ -126,12 +128,9 @@ def map_on_ray(
     if not items:
         return
     with ray_connection(address, min(workers, len(items)), section) as ray:
-        cpus = int(ray.cluster_resources().get("CPU", 0))
-        n = max(1, min(workers, len(items), cpus))
-        if n < min(workers, len(items)):
-            log.warning("the Ray cluster has %d CPUs: %d workers instead of %d", cpus, n, workers)
+        n = _workers_that_fit(ray.cluster_resources(), min(workers, len(items)), gpus, section)
         env_vars = {k: os.environ[k] for k in FORWARDED_ENV if k in os.environ}
-        actor_class = ray.remote(num_cpus=1)(_Worker)
+        actor_class = ray.remote(num_cpus=1, num_gpus=gpus)(_Worker)
         options = {"runtime_env": {"env_vars": env_vars}} if env_vars else {}
         refs = [ray.put(arg) for arg in init_args]  # once in the object store, for every actor
         actors = [actor_class.options(**options).remote(init, work, close, *refs) for _ in range(n)]
@@ -139,6 +138,23 @@ def map_on_ray(
             yield from _in_order(ray, actors, items)
         finally:
             _stop(ray, actors)
+
+
+def _workers_that_fit(total: dict, wanted: int, gpus: float, section: str) -> int:
+    """How many of ``wanted`` workers (one CPU and ``gpus`` GPUs each) the cluster's
+    resources ``total`` hold at once: an actor that cannot be placed would hold up the
+    episodes handed to it, so there are never more."""
+    need = {"CPU": 1.0, **({"GPU": gpus} if gpus > 0 else {})}
+    fits = min(int(total.get(key, 0) // amount) for key, amount in need.items())
+    if fits < 1:
+        have = ", ".join(f"{total.get(k, 0):g} {k}" for k in need)
+        raise ConfigError(
+            f"{section}.backend=ray: the Ray cluster has {have}, a worker needs "
+            f"{', '.join(f'{v:g} {k}' for k, v in need.items())}"
+        )
+    if fits < wanted:
+        log.warning("the Ray cluster holds %d workers at once, not %d", fits, wanted)
+    return min(fits, wanted)
 
 
 def _in_order(ray, actors: list, items: Sequence) -> Iterator:

@@ -84,6 +84,7 @@ def ray_episode_rows(
     files = checkpoint_files(path) if path else None
     init_args = (files, sub, base, portable_env_kwargs(env_kwargs), tuple(indices))
     address = cfg.eval.ray_address
+    gpus = 1.0 if cfg.eval.device.startswith("cuda") else 0.0  # an agent on a GPU gets one
     yield from map_on_ray(
-        _init_remote, init_args, _work, indices, workers, _close_remote, address, "eval"
+        _init_remote, init_args, _work, indices, workers, _close_remote, address, "eval", gpus
     )
