@@ -12,6 +12,7 @@ import pytest
 from vla_gr.envs.episodes import (
     MAX_START_DISTANCE,
     MIN_START_DISTANCE,
+    OPTIONAL_FIELDS,
     EpisodeFileError,
     EpisodeSpec,
     episode_rng,
@@ -179,7 +180,7 @@ def test_a_spec_without_description_writes_exactly_the_old_record(tmp_path):
     spec = make_spec(box_room_house(), 1.0, 1.0)
     assert spec.description is None and set(spec.to_dict()) == OLD_KEYS
     path = save_episodes(tmp_path / "old.jsonl", [spec])
-    old = {k: v for k, v in dataclasses.asdict(spec).items() if k != "description"}
+    old = {k: v for k, v in dataclasses.asdict(spec).items() if k not in OPTIONAL_FIELDS}
     assert path.read_text() == json.dumps(old, sort_keys=True) + "\n"
     assert EpisodeSpec.from_dict(old) == spec  # an old record loads
     assert EpisodeSpec.from_dict(dict(old, description=None)) == spec  # and asdict's form

@@ -50,6 +50,8 @@ class NoEpisodeError(ValueError):
 
 #: The keys of an episode's ``description`` (the generator's fields of its goal).
 DESCRIPTION_FIELDS: tuple[str, ...] = ("category", "color", "room", "near")
+#: The fields of an episode record written only when set (so older files read unchanged).
+OPTIONAL_FIELDS: tuple[str, ...] = ("description", "absent")
 #: The text fields of an episode record.
 TEXT_FIELDS: tuple[str, ...] = ("episode_id", "split", "goal_category", "instruction")
 
@@ -60,8 +62,10 @@ class EpisodeSpec:
 
     ``description`` (optional) holds the generator's fields of the goal
     (``DESCRIPTION_FIELDS``, None where not named) for an episode whose ``instruction`` is a
-    hand-written request; it is written to files and dicts only when set, so specs without
-    one read and write exactly as before.
+    hand-written request. ``absent`` (optional) marks a request for an object the house does
+    not have (:mod:`~vla_gr.envs.absent`): no goal object (``goal_instance_id`` -1, start
+    distance 0), ``goal_category`` the category asked for. Each is written to files and dicts
+    only when set, so specs without them read and write exactly as before.
     """
 
     episode_id: str
@@ -77,9 +81,14 @@ class EpisodeSpec:
     instruction: str
     geodesic_start_distance: float
     description: dict | None = dataclasses.field(default=None, hash=False)
+    absent: bool = False
 
     def __post_init__(self) -> None:
         check_description(self.description, self.episode_id)
+        if not isinstance(self.absent, bool):
+            raise ValueError(
+                f"episode {self.episode_id}: absent must be true or false, got {self.absent!r}"
+            )
 
     @property
     def scene_key(self) -> tuple[int, int | None, float]:
@@ -92,18 +101,19 @@ class EpisodeSpec:
         return np.array([self.start_x, self.start_y, self.start_yaw], dtype=np.float64)
 
     def to_dict(self) -> dict:
-        """The fields as a dict; ``description`` only when set."""
+        """The fields as a dict; ``description`` and ``absent`` only when set."""
         out = dataclasses.asdict(self)
-        if out["description"] is None:
-            del out["description"]
+        for key in OPTIONAL_FIELDS:
+            if not out[key]:
+                del out[key]
         return out
 
     @classmethod
     def from_dict(cls, record: dict) -> EpisodeSpec:
-        """Build from a dict with exactly the dataclass fields, ``description`` optional
-        (ValueError otherwise)."""
+        """Build from a dict with exactly the dataclass fields, ``description`` and ``absent``
+        optional (ValueError otherwise)."""
         names = {f.name for f in dataclasses.fields(cls)}
-        missing, extra = names - set(record) - {"description"}, set(record) - names
+        missing, extra = names - set(record) - set(OPTIONAL_FIELDS), set(record) - names
         if missing or extra:
             raise ValueError(
                 f"episode record has missing fields {sorted(missing)} / "
@@ -276,9 +286,11 @@ def validate_spec(
     """Raise ValueError with the reason if ``spec`` cannot run in ``house``.
 
     Checks the goal exists (with the spec's category), the start lies in the map, outside
-    every obstacle inflated by the robot radius, and is reachable from the goal.
+    every obstacle inflated by the robot radius, and is reachable from the goal; for an
+    ``absent`` spec, that its request fits no object instead
+    (:func:`~vla_gr.envs.absent.check_absent`).
     ``traversable`` (H, W) and ``distance_field`` (H, W) may be passed when already computed.
-    Returns the geodesic start distance (m).
+    Returns the geodesic start distance (m; 0 for an absent spec).
     """
     if spec.split not in SPLITS:
         raise ValueError(f"episode {spec.episode_id}: split={spec.split!r} not in {SPLITS}")
@@ -286,18 +298,12 @@ def validate_spec(
         raise ValueError(
             f"episode {spec.episode_id}: scene_seed={spec.scene_seed} but house seed={house.seed}"
         )
-    try:
-        goal = house.object(spec.goal_instance_id)
-    except KeyError:
-        raise ValueError(
-            f"episode {spec.episode_id}: goal object {spec.goal_instance_id} is missing from "
-            f"house {house.seed}"
-        ) from None
-    if goal.category != spec.goal_category:
-        raise ValueError(
-            f"episode {spec.episode_id}: goal object {goal.instance_id} is a {goal.category}, "
-            f"not a {spec.goal_category}"
-        )
+    if spec.absent:
+        from vla_gr.envs.absent import check_absent
+
+        check_absent(spec, house)
+    else:
+        _check_goal(spec, house)
     pose = spec.start_pose
     if not np.all(np.isfinite(pose)):
         raise ValueError(f"episode {spec.episode_id}: start pose {pose.tolist()} is not finite")
@@ -314,6 +320,8 @@ def validate_spec(
             f"episode {spec.episode_id}: start ({pose[0]:.2f}, {pose[1]:.2f}) is inside an "
             f"obstacle (or closer than the robot radius {ROBOT_RADIUS} m to one)"
         )
+    if spec.absent:
+        return 0.0
     if distance_field is None:
         distance_field = goal_field(house, spec.goal_instance_id)
     if not np.isfinite(distance_field[row, col]):
@@ -322,6 +330,22 @@ def validate_spec(
             f"from goal object {spec.goal_instance_id}"
         )
     return sample_field(distance_field, house.grid, pose[0], pose[1])
+
+
+def _check_goal(spec: EpisodeSpec, house: House) -> None:
+    """ValueError unless ``spec``'s goal object is in ``house`` with the spec's category."""
+    try:
+        goal = house.object(spec.goal_instance_id)
+    except KeyError:
+        raise ValueError(
+            f"episode {spec.episode_id}: goal object {spec.goal_instance_id} is missing from "
+            f"house {house.seed}"
+        ) from None
+    if goal.category != spec.goal_category:
+        raise ValueError(
+            f"episode {spec.episode_id}: goal object {goal.instance_id} is a {goal.category}, "
+            f"not a {spec.goal_category}"
+        )
 
 
 def save_episodes(path: str | Path, specs) -> Path:
@@ -375,7 +399,8 @@ def check_episodes(specs, where) -> None:
     (:func:`~vla_gr.envs.grounding.ground`) must be the goal.
 
     A spec with a ``description`` declares its goal itself (a hand-written request, the
-    not-understood and absent-object ones among them) and is not read.
+    not-understood ones among them) and is not read; an ``absent`` spec's request must fit no
+    object (:func:`validate_spec`).
     """
     from vla_gr.envs.grounding import ground, object_phrase
     from vla_gr.envs.house import generate_house
@@ -396,7 +421,7 @@ def check_episodes(specs, where) -> None:
             validate_spec(spec, house, traversable)
         except ValueError as err:
             raise EpisodeFileError(f"{place}: {err}") from None
-        if spec.description is not None:
+        if spec.description is not None or spec.absent:
             continue
         goal = house.object(spec.goal_instance_id)
         try:

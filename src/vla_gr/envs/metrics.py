@@ -196,14 +196,18 @@ class EpisodeMeasures:
     def success_distance(self) -> float:
         return self.success.success_distance
 
-    def reset(self, start_xy, geodesic_start_distance: float) -> None:
-        """Start an episode at ``start_xy`` (2,) with l* = ``geodesic_start_distance`` (m)."""
+    def reset(
+        self, start_xy, geodesic_start_distance: float, distance_to_goal: float | None = None
+    ) -> None:
+        """Start an episode at ``start_xy`` (2,) with l* = ``geodesic_start_distance`` (m);
+        ``distance_to_goal`` at the start when it is not l* (``inf``: no goal to reach)."""
         _check_nonneg(geodesic_start_distance=geodesic_start_distance)
         self.geodesic_start_distance = float(geodesic_start_distance)
         self.success.reset()
         self.spl.reset(geodesic_start_distance)
         self.soft_spl.reset(geodesic_start_distance)
-        self.distance_to_goal.reset(geodesic_start_distance)
+        start = geodesic_start_distance if distance_to_goal is None else distance_to_goal
+        self.distance_to_goal.reset(start)
         self.collisions.reset()
         self.path_length.reset(start_xy)
         self._started = True

@@ -32,7 +32,9 @@ Robustness noise of episode ``k`` is drawn from ``(k, seed)``
 (:func:`~vla_gr.envs.episode_order.episode_noise_rng`). ``options["instruction"]`` replaces the
 episode's instruction by the user's own words and grounds its goal in the house
 (:mod:`~vla_gr.envs.grounding`): the house and start stay. ``options["house"]`` may supply a
-hand-built :class:`House` whose seed matches the spec (for tests and tools).
+hand-built :class:`House` whose seed matches the spec (for tests and tools). An absent-object
+spec (``absent``, :mod:`~vla_gr.envs.absent`) runs without a goal object: ``goal`` is None,
+``distance_to_goal`` inf, no STOP succeeds; the agent's right outcome is ``declare("not_found")``.
 """
 
 from __future__ import annotations
@@ -250,6 +252,11 @@ class ObjectNavEnv(gym.Env):
         self.trajectory_world: list[tuple[float, float]] = []
 
     # ------------------------------------------------------------------ ground truth
+
+    @property
+    def goal_id(self) -> int | None:
+        """The goal object's instance id; None in an absent-object episode (or before reset)."""
+        return None if self.goal is None else int(self.goal.instance_id)
 
     def robot_pose_world(self) -> np.ndarray:
         """World pose (3,) = (x, y, yaw) of the robot, yaw in (-pi, pi]."""
@@ -492,8 +499,8 @@ class ObjectNavEnv(gym.Env):
         """Run ``spec`` (in ``house`` if given); a ``request`` replaces its instruction and
         its goal becomes the object the request describes (the start stays)."""
         self._scene, self._done = None, True  # the old episode is over even if this one fails
-        if request is not None:
-            spec = dataclasses.replace(spec, instruction=request)
+        if request is not None:  # the user's words name an object of the house: not absent
+            spec = dataclasses.replace(spec, instruction=request, absent=False)
         instruction = folded_instruction(spec)
         scene = self._load_scene(spec, house)
         if request is not None:
@@ -524,13 +531,18 @@ class ObjectNavEnv(gym.Env):
         self.house = scene.house
         self.episode_spec = spec
         self.instruction = instruction
-        self.goal = scene.house.object(spec.goal_instance_id)
+        self.goal = None if spec.absent else scene.house.object(spec.goal_instance_id)
         self.traversable = scene.traversable
-        self.goal_distance = goal_field
+        # no goal object: infinitely far everywhere (no STOP succeeds)
+        self.goal_distance = (
+            np.full(scene.traversable.shape, np.inf) if spec.absent else goal_field
+        )  # (H, W)
         self.start_pose_world = spec.start_pose
         rb.set_robot_pose(scene.model, scene.data, scene.robot, self.start_pose_world)
         self.trajectory_world = [(float(spec.start_x), float(spec.start_y))]
-        self._measures.reset((spec.start_x, spec.start_y), start_distance)
+        self._measures.reset(
+            (spec.start_x, spec.start_y), start_distance, math.inf if spec.absent else None
+        )
         self._steps = 0
         self._done = False
 
