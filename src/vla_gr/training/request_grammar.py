@@ -112,6 +112,19 @@ _REMARKS = (
     "the {c} {n} is ugly lol", "did anyone sit on the {n}?", "why is the {n} wet?",
     "i'm watching the {n}", "the {n} is fine where it is", "leave the {n} alone",
 )  # fmt: skip
+#: The same remarks about the goal, then a command that points back at it ("my cat keeps
+#: chewing the green plant, go over and keep an eye on it"): a request.
+_REMARKS_ABOUT_GOAL = (
+    "my cat keeps chewing {p}", "someone spilled juice on {p}", "i think i dropped my keys on {p}",
+    "is {p} still alive?", "{p} looks dusty", "where did we put {p}?", "i love {p}",
+    "the cat is sleeping on {p}", "did anyone water {p}?", "i left my phone on {p}",
+    "is {p} still broken?", "i want to sit on {p} for a bit", "{p} needs cleaning",
+)  # fmt: skip
+_POINTING_COMMANDS = (
+    "go take a look", "go there", "take me to it", "go check on it", "can you go there?",
+    "go find it", "bring me to it", "go over and keep an eye on it", "have a look at it",
+    "go to it", "take me there", "go see", "head over there",
+)  # fmt: skip
 _NEAR = (
     "next to", "near", "beside", "by", "close to", "right next to", "right by", "alongside",
     "adjacent to", "near to", "just by", "at", "nearby", "against", "by the side of",
@@ -455,9 +468,14 @@ class RequestGrammar:
             seg += [(self._pick(rng, _FRONTED_COMMANDS), "O")] if rng.random() < 0.8 else []
         elif style < 0.67:
             seg = [(self._pick(rng, _WISHES), "O")] + phrase
-        elif style < 0.80:
+        elif style < 0.76:
             question = self._pick(rng, _QUESTIONS)
             seg = [(question[0], "O")] + phrase + [(question[1], "O")]
+        elif style < 0.82:  # a remark about the goal, then a command pointing back at it
+            before, after = self._pick(rng, _REMARKS_ABOUT_GOAL).split("{p}")
+            link = self._pick(rng, (",", ".", "-", "", "so", "--"))
+            seg = [(before, "O")] + phrase + [(after, "O"), (link, "O")]
+            seg += [(self._pick(rng, _POINTING_COMMANDS), "O")]
         elif style < 0.88 and room is not None:  # the room said first
             lead = self._pick(rng, ("go into the", "in the", "head to the", "enter the", "",
                                     "the", "over in the", "in my"))  # fmt: skip
