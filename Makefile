@@ -33,7 +33,7 @@ $(STAMP): pyproject.toml constraints.txt $(APT_STAMP)
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PIP) install -q --upgrade pip
 	$(PIP) install -q -c constraints.txt torch==2.13.0
-	$(PIP) install -q -c constraints.txt -e ".[dev,lerobot,ray]"
+	$(PIP) install -q -c constraints.txt -e ".[dev,lerobot,ray,onnx]"
 	@touch $@
 
 demo: setup

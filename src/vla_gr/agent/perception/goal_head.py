@@ -24,6 +24,7 @@ import torch.nn.functional as F
 from torch import nn
 from torch.utils.checkpoint import checkpoint
 
+from vla_gr.agent.perception.engine import Network
 from vla_gr.core.encoders import TEXT_ENCODERS, build_text_encoder
 from vla_gr.geometry.robot_spec import MAX_DEPTH
 from vla_gr.validation import check_choice, check_positive
@@ -79,8 +80,11 @@ def upsample_nearest_2x(h: torch.Tensor) -> torch.Tensor:
     """(B, C, H, W) -> (B, C, 2H, 2W), each value repeated into a 2x2 block.
 
     The same values as ``F.interpolate(h, scale_factor=2, mode="nearest")``, as a view
-    expanded and copied once: several times faster on CPU at the decoder's sizes.
+    expanded and copied once: several times faster on CPU at the decoder's sizes. An ONNX
+    export writes the interpolation (one Resize: ONNX Runtime runs the Expand 10x slower).
     """
+    if torch.onnx.is_in_onnx_export():
+        return F.interpolate(h, scale_factor=2.0, mode="nearest")  # (B, C, 2H, 2W)
     B, C, H, W = h.shape
     return h[:, :, :, None, :, None].expand(B, C, H, 2, W, 2).reshape(B, C, 2 * H, 2 * W)
 
@@ -151,8 +155,11 @@ class GoalHead(nn.Module):
             raise TypeError("instructions must be a sequence of str, one per frame")
         return self.text(list(instructions))  # (B, E)
 
-    def _inputs(self, rgb: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
-        """rgb (B, 3, H, W) uint8 or [0, 1], depth (B, 1, H, W) m -> (B, 4, H, W) in [-1, 1]."""
+    def network_inputs(
+        self, rgb: torch.Tensor, depth: torch.Tensor, instructions: Sequence[str]
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """What :meth:`network` takes: rgb (B, 3, H, W) uint8 or [0, 1], depth (B, 1, H, W) m
+        and ``B`` instructions -> x (B, 4, H, W) in [-1, 1] and the instructions' text (B, E)."""
         if rgb.dim() != 4 or rgb.shape[1] != 3:
             raise ValueError(f"rgb must be (B, 3, H, W); got {tuple(rgb.shape)}")
         if depth.shape != (rgb.shape[0], 1, *rgb.shape[2:]):
@@ -160,27 +167,15 @@ class GoalHead(nn.Module):
         H, W = rgb.shape[2:]
         if H % self.stride or W % self.stride:
             raise ValueError(f"image sides {(H, W)} must be divisible by {self.stride}")
-        return rgbd_inputs(rgb, depth, self.config.max_depth)  # (B, 4, H, W)
-
-    def forward(
-        self, rgb: torch.Tensor, depth: torch.Tensor, instructions: Sequence[str]
-    ) -> dict[str, torch.Tensor]:
-        """Goal logits of ``B`` frames.
-
-        Args:
-            rgb: (B, 3, H, W) uint8 or float in [0, 1].
-            depth: (B, 1, H, W) metres.
-            instructions: ``B`` strings.
-
-        Returns:
-            ``pixel_logits`` (B, H, W) and ``visible_logits`` (B,); with ``category_head``
-            also ``category_logits`` (B, H, W).
-        """
-        x = self._inputs(rgb, depth)  # (B, 4, H, W)
+        x = rgbd_inputs(rgb, depth, self.config.max_depth)  # (B, 4, H, W)
         text = self.encode_text(instructions)  # (B, E)
         if text.shape[0] != x.shape[0]:
             raise ValueError(f"{text.shape[0]} instructions for {x.shape[0]} frames")
-        text = text.to(x.dtype)
+        return x, text.to(x.dtype)
+
+    def network(self, x: torch.Tensor, text: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The U-Net, what an inference engine runs (:mod:`.engine`): x (B, 4, H, W) in
+        [-1, 1] and text (B, E) (:meth:`network_inputs`) -> the logits of :meth:`forward`."""
         skips = [self._run(self.stem, x, text)]  # [(B, C0, H, W)]
         for stage in self.down:
             skips.append(self._run(stage, skips[-1], text))  # (B, C_i, H / 2^i, W / 2^i)
@@ -205,6 +200,27 @@ class GoalHead(nn.Module):
             return checkpoint(stage, x, text, use_reentrant=False)
         return stage(x, text)
 
+    def forward(
+        self,
+        rgb: torch.Tensor,
+        depth: torch.Tensor,
+        instructions: Sequence[str],
+        network: Network | None = None,
+    ) -> dict[str, torch.Tensor]:
+        """Goal logits of ``B`` frames.
+
+        Args:
+            rgb: (B, 3, H, W) uint8 or float in [0, 1].
+            depth: (B, 1, H, W) metres.
+            instructions: ``B`` strings.
+            network: what runs :meth:`network` (an engine's export of it; None: this module).
+
+        Returns:
+            ``pixel_logits`` (B, H, W) and ``visible_logits`` (B,); with ``category_head``
+            also ``category_logits`` (B, H, W).
+        """
+        return (network or self.network)(*self.network_inputs(rgb, depth, instructions))
+
     def pixel_probability(self, outputs: dict[str, torch.Tensor]) -> torch.Tensor:
         """(B, H, W) probability that a pixel shows the goal instance: the instance output,
         gated by the category output when the head has one (and ``category_gate`` is on)."""
@@ -215,10 +231,15 @@ class GoalHead(nn.Module):
 
     @torch.no_grad()
     def probabilities(
-        self, rgb: torch.Tensor, depth: torch.Tensor, instructions: Sequence[str]
+        self,
+        rgb: torch.Tensor,
+        depth: torch.Tensor,
+        instructions: Sequence[str],
+        network: Network | None = None,
     ) -> dict[str, torch.Tensor]:
         """``pixel`` (B, H, W) goal-instance probability (gated, as S2 uses it), ``visible``
-        (B,) and, with a category output, ``category`` (B, H, W).
+        (B,) and, with a category output, ``category`` (B, H, W); ``network`` as in
+        :meth:`forward`.
 
         With ``test_time_flip`` each is the mean over the frame and its left-right mirror
         (the mirrored maps flipped back); both go through the network as one batch of 2B.
@@ -228,7 +249,7 @@ class GoalHead(nn.Module):
             rgb = torch.cat([rgb, rgb.flip(-1)])  # (2B, 3, H, W)
             depth = torch.cat([depth, depth.flip(-1)])  # (2B, 1, H, W)
             instructions = [*instructions, *instructions]
-        out = self.forward(rgb, depth, instructions)
+        out = self.forward(rgb, depth, instructions, network)
         probs = {
             "pixel": self.pixel_probability(out),  # (B or 2B, H, W)
             "visible": torch.sigmoid(out["visible_logits"].float()),  # (B or 2B,)
@@ -240,9 +261,13 @@ class GoalHead(nn.Module):
         return probs
 
     def likelihood(
-        self, rgb: torch.Tensor, depth: torch.Tensor, instructions: Sequence[str]
+        self,
+        rgb: torch.Tensor,
+        depth: torch.Tensor,
+        instructions: Sequence[str],
+        network: Network | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Probabilities: per pixel (B, H, W) and goal visible per frame (B,) (see
         :meth:`probabilities`)."""
-        probs = self.probabilities(rgb, depth, instructions)
+        probs = self.probabilities(rgb, depth, instructions, network)
         return probs["pixel"], probs["visible"]

@@ -30,6 +30,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from vla_gr.agent.perception.engine import Network
 from vla_gr.agent.perception.goal_head import norm_groups, rgbd_inputs
 from vla_gr.geometry.robot_spec import MAX_DEPTH
 from vla_gr.validation import check_positive
@@ -124,14 +125,19 @@ class ObjectCategorySegmenter(nn.Module):
             cin = skip
         self.logits = nn.Conv2d(cin, 1 + len(c.categories), 1)
 
-    def forward(self, rgb: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
-        """rgb (B, 3, H, W) uint8 or [0, 1], depth (B, 1, H, W) metres -> (B, 1 + K, H, W)."""
+    def network_inputs(self, rgb: torch.Tensor, depth: torch.Tensor) -> tuple[torch.Tensor]:
+        """What :meth:`network` takes: rgb (B, 3, H, W) uint8 or [0, 1], depth (B, 1, H, W)
+        metres -> (x (B, 4, H, W) in [-1, 1],)."""
         if rgb.dim() != 4 or rgb.shape[1] != 3:
             raise ValueError(f"rgb must be (B, 3, H, W); got {tuple(rgb.shape)}")
         if depth.shape != (rgb.shape[0], 1, *rgb.shape[2:]):
             raise ValueError(f"depth must be (B, 1, H, W) like rgb; got {tuple(depth.shape)}")
-        size = rgb.shape[-2:]
-        x = rgbd_inputs(rgb, depth, self.config.max_depth)  # (B, 4, H, W)
+        return (rgbd_inputs(rgb, depth, self.config.max_depth),)  # (B, 4, H, W)
+
+    def network(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The encoder-decoder, what an inference engine runs (:mod:`.engine`): x (B, 4, H, W)
+        in [-1, 1] -> ``logits`` (B, 1 + K, H, W)."""
+        size = x.shape[-2:]
         skips = []
         for block in self.down:
             x = block(x)  # (B, C_i, H / 2^i, W / 2^i)
@@ -142,12 +148,22 @@ class ObjectCategorySegmenter(nn.Module):
             x = F.interpolate(x, size=skip.shape[-2:], mode="nearest")  # (B, C, 2h, 2w)
             x = block(torch.cat([x, skip], dim=1))  # (B, C_s, 2h, 2w)
         logits = self.logits(x)  # (B, 1 + K, H / 2, W / 2)
-        return F.interpolate(logits, size=size, mode="bilinear", align_corners=False)
+        logits = F.interpolate(logits, size=size, mode="bilinear", align_corners=False)
+        return {"logits": logits}  # (B, 1 + K, H, W)
+
+    def forward(
+        self, rgb: torch.Tensor, depth: torch.Tensor, network: Network | None = None
+    ) -> torch.Tensor:
+        """rgb (B, 3, H, W) uint8 or [0, 1], depth (B, 1, H, W) metres -> (B, 1 + K, H, W);
+        ``network`` runs :meth:`network` (an engine's export of it; None: this module)."""
+        return (network or self.network)(*self.network_inputs(rgb, depth))["logits"]
 
     @torch.no_grad()
-    def probabilities(self, rgb: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
+    def probabilities(
+        self, rgb: torch.Tensor, depth: torch.Tensor, network: Network | None = None
+    ) -> torch.Tensor:
         """Per-pixel probabilities (B, 1 + K, H, W): background, then ``config.categories``."""
-        return F.softmax(self(rgb, depth).float(), dim=1)
+        return F.softmax(self(rgb, depth, network).float(), dim=1)
 
 
 def category_match(

@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from vla_gr.agent.observations import as_instructions, env_obs_to_frame
+from vla_gr.agent.perception.engine import Network
 from vla_gr.agent.perception.goal_head import GoalHead
 from vla_gr.agent.perception.object_category import (
     ObjectCategorySegmenter,
@@ -102,6 +103,9 @@ class LearnedPerception:
         reader: the instruction reader (None: the template words are read exactly, and the
             goal head reads the request as said).
         gate: optional privileged pixel gate multiplied into the goal likelihood.
+        networks: what runs each network's ``network`` by name (``goal_head``, ``room_type``,
+            ``object_category``: an inference engine's, :mod:`.engine`); a name absent: the
+            module itself (PyTorch).
     """
 
     def __init__(
@@ -112,6 +116,7 @@ class LearnedPerception:
         object_category: ObjectCategorySegmenter | None = None,
         reader: InstructionReader | None = None,
         gate: PixelGate | None = None,
+        networks: Mapping[str, Network] | None = None,
     ) -> None:
         self.config = config
         self.goal_head = goal_head
@@ -119,6 +124,7 @@ class LearnedPerception:
         self.object_category = object_category
         self.reader = reader
         self.gate = gate
+        self.networks = dict(networks or {})
         self._episode: _EpisodeReading | None = None
 
     def gated(self, gate: PixelGate) -> LearnedPerception:
@@ -175,15 +181,18 @@ class LearnedPerception:
                 f"S2 does not act on a request it did not understand: {episode.reading.reason}"
             )
         frame = env_obs_to_frame({**obs, "instruction": episode.phrase}, device=self.device)
+        networks = self.networks
         pixels, visible = self.goal_head.likelihood(
-            frame["rgb"], frame["depth"], frame["instruction"]
+            frame["rgb"], frame["depth"], frame["instruction"], networks.get("goal_head")
         )  # (1, H, W), (1,)
         likelihood = pixels[0].float().cpu().numpy()  # (H, W)
         segmented: list[np.ndarray] = []  # the segmenter's (1 + K, H, W), once per tick
 
         def segment() -> np.ndarray:
             if not segmented:
-                probs = self.object_category.probabilities(frame["rgb"], frame["depth"])[0]
+                probs = self.object_category.probabilities(
+                    frame["rgb"], frame["depth"], networks.get("object_category")
+                )[0]
                 segmented.append(probs.cpu().numpy())  # (1 + K, H, W)
             return segmented[0]
 
@@ -210,7 +219,9 @@ class LearnedPerception:
 
         room_match = 1.0
         if self.room_type is not None and episode.room is not None:
-            probs = self.room_type.probabilities(frame["rgb"], frame["depth"])  # (1, R)
+            probs = self.room_type.probabilities(
+                frame["rgb"], frame["depth"], networks.get("room_type")
+            )  # (1, R)
             room_match = float(probs[0, episode.room])
 
         match, anchor = None, None

@@ -25,6 +25,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from vla_gr.agent.perception.engine import Network
 from vla_gr.agent.perception.goal_head import norm_groups, rgbd_inputs
 from vla_gr.geometry.robot_spec import MAX_DEPTH
 from vla_gr.validation import check_positive
@@ -80,21 +81,35 @@ class RoomTypeClassifier(nn.Module):
         self.features = nn.Sequential(*layers)
         self.logits = nn.Linear(width, len(c.room_types))
 
-    def forward(self, rgb: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
-        """rgb (B, 3, H, W) uint8 or [0, 1], depth (B, 1, H, W) metres -> logits (B, R)."""
+    def network_inputs(self, rgb: torch.Tensor, depth: torch.Tensor) -> tuple[torch.Tensor]:
+        """What :meth:`network` takes: rgb (B, 3, H, W) uint8 or [0, 1], depth (B, 1, H, W)
+        metres -> (x (B, 4, s, s) in [-1, 1], area-averaged to ``input_size``,)."""
         if rgb.dim() != 4 or rgb.shape[1] != 3:
             raise ValueError(f"rgb must be (B, 3, H, W); got {tuple(rgb.shape)}")
         if depth.shape != (rgb.shape[0], 1, *rgb.shape[2:]):
             raise ValueError(f"depth must be (B, 1, H, W) like rgb; got {tuple(depth.shape)}")
         x = rgbd_inputs(rgb, depth, self.config.max_depth)  # (B, 4, H, W)
-        x = F.adaptive_avg_pool2d(x, self.config.input_size)  # (B, 4, s, s)
+        return (F.adaptive_avg_pool2d(x, self.config.input_size),)  # (B, 4, s, s)
+
+    def network(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The CNN, what an inference engine runs (:mod:`.engine`): x (B, 4, s, s) ->
+        ``logits`` (B, R)."""
         h = self.features(x)  # (B, C, s', s')
-        return self.logits(h.mean(dim=(2, 3)))  # (B, R)
+        return {"logits": self.logits(h.mean(dim=(2, 3)))}  # (B, R)
+
+    def forward(
+        self, rgb: torch.Tensor, depth: torch.Tensor, network: Network | None = None
+    ) -> torch.Tensor:
+        """rgb (B, 3, H, W) uint8 or [0, 1], depth (B, 1, H, W) metres -> logits (B, R);
+        ``network`` runs :meth:`network` (an engine's export of it; None: this module)."""
+        return (network or self.network)(*self.network_inputs(rgb, depth))["logits"]
 
     @torch.no_grad()
-    def probabilities(self, rgb: torch.Tensor, depth: torch.Tensor) -> torch.Tensor:
+    def probabilities(
+        self, rgb: torch.Tensor, depth: torch.Tensor, network: Network | None = None
+    ) -> torch.Tensor:
         """Room-type probabilities (B, R), in the order of ``config.room_types``."""
-        return F.softmax(self(rgb, depth).float(), dim=-1)  # (B, R)
+        return F.softmax(self(rgb, depth, network).float(), dim=-1)  # (B, R)
 
 
 def spoken_room_name(room_type: str) -> str:
