@@ -78,6 +78,7 @@ class LoadedCheckpoint:
     config_yaml: str  # the run config; a pretrained folder's config.json as {"model": ...}
     training: dict[str, torch.Tensor] = field(default_factory=dict)
     config_file: str = CONFIG_FILE  # the file the config came from
+    manifest: dict = field(default_factory=dict)  # manifest.json, as read and verified
 
     def group(self, prefix: str) -> dict[str, torch.Tensor]:
         """Entries of ``training_state.safetensors`` under ``prefix.`` (prefix stripped)."""
@@ -298,6 +299,46 @@ def save_checkpoint(
     return final
 
 
+def add_files(
+    folder: str | Path,
+    files: Mapping[str, bytes],
+    records: Mapping[str, object],
+    drop: Sequence[str] = (),
+) -> None:
+    """Add ``files`` (name -> bytes) to checkpoint ``folder`` and to its manifest, set the
+    manifest's top-level ``records``, and remove the files ``drop`` names (from both).
+
+    Each file is written to a temporary name and renamed, then the manifest likewise; the
+    dropped files go last. A kill leaves the old manifest over intact files, or the new one:
+    so a file it lists is never rewritten in place (give new contents a new name).
+    """
+    folder = Path(folder)
+    manifest = _parse(folder, MANIFEST_FILE, _read_json)
+    listed = manifest["files"]
+    for name, data in files.items():
+        if name in (MANIFEST_FILE, *listed) and name not in drop:
+            raise CheckpointError(f"checkpoint {folder}: {name} is listed already")
+        tmp = folder / f".{name}.tmp-{os.getpid()}"
+        _write_bytes(tmp, data)
+        os.replace(tmp, folder / name)
+    for name in drop:
+        listed.pop(name, None)
+    for name in files:
+        listed[name] = {
+            "sha256": sha256_file(folder / name),
+            "bytes": (folder / name).stat().st_size,
+        }
+    manifest.update(records)
+    manifest["files"] = dict(sorted(listed.items()))
+    tmp = folder / f".{MANIFEST_FILE}.tmp-{os.getpid()}"
+    _write_bytes(tmp, json.dumps(manifest, indent=1).encode())
+    os.replace(tmp, folder / MANIFEST_FILE)
+    _fsync_dir(folder)
+    for name in drop:
+        if name not in files and (folder / name).is_file():
+            (folder / name).unlink()
+
+
 def prune_checkpoints(checkpoints_dir: str | Path, keep: int) -> list[Path]:
     """Delete step folders beyond the ``keep`` newest, never one a link points at, and the
     leftovers of interrupted writes; returns what was removed."""
@@ -372,6 +413,7 @@ def read_checkpoint(
         config_yaml=_parse(path, config_file, read_config),
         training=training,
         config_file=config_file,
+        manifest=manifest,
     )
 
 

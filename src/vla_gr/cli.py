@@ -7,6 +7,7 @@ it would run with (an app module's ``compose_from_cli``, else ``load_config``). 
 verify PATH`` checks an episode store, ``vla-gr store copy SRC DST`` rewrites one,
 ``vla-gr store export-lerobot SRC DST`` writes one as a LeRobotDataset folder;
 ``vla-gr export SRC DST [key=value ...]`` writes a checkpoint for shipping;
+``vla-gr export-onnx CHECKPOINT`` writes the ONNX export of its perception networks into it;
 ``vla-gr read TEXT [checkpoint=PATH]`` prints how an agent reads a request (exit 0 when
 understood, 3 when not).
 Errors a user causes end in one or two lines on stderr and exit code 2 (see
@@ -126,6 +127,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="write renamed model keys by their new names (values unchanged), drop removed ones",
     )
     add_verbose_argument(export)
+    onnx = sub.add_parser(
+        "export-onnx",
+        help="write the ONNX export of a checkpoint's perception networks into it",
+        description="Export the goal head and the checks of checkpoint CHECKPOINT to ONNX "
+        "(checked against PyTorch), listed in its manifest with the digest of their weights; "
+        "model.perception.engine=onnxruntime runs them.",
+    )
+    onnx.add_argument("checkpoint", help="a checkpoint folder, e.g. checkpoints/vla_gr_cpu")
+    add_verbose_argument(onnx)
     read_help = TOOLS["read"][1]
     read = sub.add_parser("read", help=read_help, description=f"{read_help}; exit 3 when not")
     add_read_arguments(read)
@@ -183,6 +193,20 @@ def export_command(
     return 0
 
 
+def export_onnx_command(checkpoint: str) -> int:
+    """Write the ONNX export of ``checkpoint``'s perception networks; prints its files; 0."""
+    from vla_gr.checkpoint import CheckpointError
+    from vla_gr.errors import UserError
+    from vla_gr.policy.onnx_export import export_onnx
+
+    try:
+        files = export_onnx(checkpoint)
+    except CheckpointError as err:
+        raise UserError(str(err)) from err
+    sys.stdout.write("".join(f"{f}\n" for f in files))
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     configure_logging()
@@ -222,6 +246,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             args.rename_keys,
             verbose=args.verbose,
         )
+    if args.command == "export-onnx":
+        return run_command(prog, export_onnx_command, args.checkpoint, verbose=args.verbose)
     if args.command in TOOLS:
         func = _resolve(TOOLS[args.command][0])
         return run_command(prog, func, args.text, args.settings, verbose=args.verbose)

@@ -7,7 +7,8 @@ Nests one config per component; each lives beside its component in ``vla_gr.core
 :mod:`vla_gr.agent.navigator.config` (one section per concern), ``model.schedule``
 and ``model.s1``: :mod:`vla_gr.core.dual_system.config`, ``model.pursuit``:
 :mod:`vla_gr.agent.followers.pure_pursuit`, ``model.goal_head``, ``model.grounding``,
-``model.room_type``, ``model.object_category``: :mod:`vla_gr.agent.perception`,
+``model.room_type``, ``model.object_category``, ``model.perception``:
+:mod:`vla_gr.agent.perception`,
 ``model.instruction_reader``: :mod:`vla_gr.agent.reading`), so the defaults are written once.
 The seed's latent ``DualSystemArchitecture`` (:class:`~vla_gr.core.dual_system.DualSystemConfig`)
 is a building block no agent runs: it has no section here.
@@ -27,6 +28,7 @@ from vla_gr.agent.perception import (
     GoalHeadConfig,
     GroundingConfig,
     ObjectCategoryConfig,
+    PerceptionConfig,
     RoomTypeConfig,
 )
 from vla_gr.agent.reading import ReaderConfig
@@ -112,6 +114,9 @@ class ModelConfig:
     instruction_reader: ReaderConfig = field(
         default_factory=ReaderConfig
     )  # the request read into fields: what the goal head and the checks look for
+    perception: PerceptionConfig = field(
+        default_factory=PerceptionConfig
+    )  # what runs S2's networks at inference: torch | onnxruntime (the checkpoint's export)
     navigator: NavigatorConfig = field(default_factory=NavigatorConfig)  # S2's behaviour
     schedule: ScheduleConfig = field(default_factory=ScheduleConfig)  # S2 and S1 rates
     pursuit: PursuitConfig = field(default_factory=PursuitConfig)  # S1 ablation: follower

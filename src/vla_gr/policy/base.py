@@ -44,6 +44,10 @@ class NavigationPolicy(nn.Module, PolicyHubMixin):
         self._env_states: list = []  # one episode state per env, env 0 first
         self._num_envs: int | None = None  # envs acted for since reset(); None: not yet
 
+    def attach_checkpoint(self, loaded) -> None:
+        """What the agent takes from its checkpoint folder ``loaded`` (a ``LoadedCheckpoint``)
+        besides its weights, once they are loaded; nothing here."""
+
     def freeze_parts(self) -> None:
         """Stop gradients of the parts ``model.freeze`` names (after the parts are built)."""
         for name in self.config.freeze:

@@ -16,12 +16,13 @@ value unchanged, and the training state records what was renamed and dropped.
 from __future__ import annotations
 
 import copy
+import json
 import os
 import shutil
 from collections.abc import Mapping, MutableMapping, Sequence
 from pathlib import Path
 
-from vla_gr.checkpoint import read_checkpoint, save_checkpoint
+from vla_gr.checkpoint import MANIFEST_FILE, read_checkpoint, save_checkpoint
 from vla_gr.errors import UserError
 
 __all__ = ["export_pretrained", "rename_model_keys", "write_checkpoint_folder"]
@@ -171,8 +172,9 @@ def export_pretrained(
             filled.append(f"{key}={value}")
     if fill_missing or rename_keys:  # checks the new config and the overrides
         checkpoint_model_config(OmegaConf.to_yaml(config), src, overrides)
-    else:
-        load_policy(src, overrides=overrides)  # checks src and the overrides
+    else:  # checks the overrides, then src's weights (an ONNX export is written below)
+        checkpoint_model_config(loaded.config_yaml, src, overrides, loaded.config_file)
+        load_policy(src, overrides=[*overrides, "perception.engine=torch"])
     model = OmegaConf.merge(config.model, OmegaConf.from_dotlist(list(overrides)))
     config.model = model
     # the overrides accumulate over exports; re-exporting in place keeps the first origin
@@ -191,9 +193,14 @@ def write_checkpoint_folder(
 ) -> Path:
     """Write ``tensors`` and ``config_yaml`` as checkpoint folder ``dst`` (replaced once the
     new one is complete), with the training state of checkpoint ``loaded`` (without its RNG,
-    at its step) plus ``state_updates``; verified by loading the result. Files of an existing
-    ``dst`` that a checkpoint does not hold (its ``eval_results.md``) are carried over."""
+    at its step) plus ``state_updates``, and the ONNX export of its perception networks when
+    ``model.perception.engine=onnxruntime`` (:mod:`vla_gr.policy.onnx_export`); verified by
+    loading the result. Files of an existing ``dst`` that its manifest does not list (its
+    ``eval_results.md``) are carried over."""
+    from omegaconf import OmegaConf
+
     from vla_gr.policy.factory import load_policy
+    from vla_gr.policy.onnx_export import export_onnx
 
     dst = Path(dst)
     staging = dst.parent / f".export-{dst.name}-{os.getpid()}"
@@ -204,12 +211,23 @@ def write_checkpoint_folder(
     written = save_checkpoint(
         staging, int(loaded.state.get("step", 0)), tensors, state, config_yaml, links=()
     )
+    if OmegaConf.select(OmegaConf.create(config_yaml), "model.perception.engine") == "onnxruntime":
+        export_onnx(written)
     if dst.exists():
+        listed = _listed_files(dst)
         for kept in sorted(dst.iterdir()):
-            if kept.is_file() and not (written / kept.name).exists():
+            if kept.is_file() and kept.name not in listed and not (written / kept.name).exists():
                 shutil.copy2(kept, written / kept.name)
         shutil.rmtree(dst)
     os.replace(written, dst)
     shutil.rmtree(staging)
     load_policy(dst)  # the result verifies and loads
     return dst
+
+
+def _listed_files(folder: Path) -> set[str]:
+    """The files the manifest of checkpoint ``folder`` lists (none without a readable one)."""
+    try:
+        return set(json.loads((folder / MANIFEST_FILE).read_text())["files"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return set()

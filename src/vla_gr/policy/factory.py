@@ -129,8 +129,8 @@ REMOVED_KEYS |= {
 REMOVED_KEYS["instruction_reader.fields"] = "chose the fields of the old reader; it reads all"
 #: Model settings a loaded checkpoint may change (no weight depends on them): the planner,
 #: its GR field, which S1 drives and how it samples, the follower, the S2 schedule, the goal
-#: head's inference options (category gate, test-time flip) and the segmenter's relation
-#: candidates.
+#: head's inference options (category gate, test-time flip), the segmenter's relation
+#: candidates and the engine that runs the perception networks.
 INFERENCE_SETTINGS = (
     "navigator.",
     "pursuit.",
@@ -142,6 +142,7 @@ INFERENCE_SETTINGS = (
     "goal_head.test_time_flip",
     "object_category.relation_candidates",
     "object_category.anchor_not_goal",
+    "perception.engine",
     "s1.kind",
     "s1.use_s2",
     "s1.depth_guard",
@@ -283,4 +284,5 @@ def load_policy(
     policy = cls(config)
     apply_peft(policy, config.peft)
     load_model_state(policy, loaded.model, str(path))
+    policy.attach_checkpoint(loaded)  # the perception's ONNX export, with engine=onnxruntime
     return policy.to(device).eval()

@@ -14,7 +14,9 @@ Training (``forward``) fits S2's language-grounded goal head (``model.goal_head`
 :mod:`vla_gr.agent.perception`) on the last observation frame of each window against
 ``goal_mask`` (the instructed instance only; distractors are negatives). The other networks
 (room-type classifier, object-category segmenter, instruction reader, learned S1) are
-trained by their own stages and loaded from the checkpoint.
+trained by their own stages and loaded from the checkpoint. At inference the perception runs
+its networks with ``model.perception.engine`` (PyTorch, or the checkpoint's ONNX export under
+ONNX Runtime: :mod:`vla_gr.policy.onnx_export`).
 """
 
 from __future__ import annotations
@@ -34,8 +36,10 @@ from vla_gr.agent.perception import (
     goal_head_loss,
     mask_confusion,
 )
+from vla_gr.agent.perception.engine import Network, not_loaded
 from vla_gr.agent.perception.percept import LearnedPerception, Perception
 from vla_gr.agent.reading import InstructionReader, Reading
+from vla_gr.checkpoint import LoadedCheckpoint
 from vla_gr.configs.model_schema import ModelConfig
 from vla_gr.policy.base import NavigationPolicy, env_row
 
@@ -59,17 +63,42 @@ class VLAGRPolicy(NavigationPolicy):
         # the learned S1 is built whatever s1.kind says, so one checkpoint serves both kinds
         self.s1 = S1Policy(c.s1)
         self.freeze_parts()
+        # what runs each perception network: {} = PyTorch; the ONNX export once loaded
+        self._networks: dict[str, Network] = {}
+        if c.perception.engine == "onnxruntime":
+            self._networks = {name: not_loaded(name) for name in self.perception_networks()}
         self.use_perception(self.learned_perception())
 
+    def perception_networks(self) -> dict[str, torch.nn.Module]:
+        """The networks S2's perception runs through ``model.perception.engine``, by name
+        (``goal_head``, ``room_type``, ``object_category``: those this agent has)."""
+        parts = {
+            "goal_head": self.goal_head,
+            "room_type": self.room_type,
+            "object_category": self.object_category,
+        }
+        return {name: module for name, module in parts.items() if module is not None}
+
     def learned_perception(self) -> LearnedPerception:
-        """S2's perception from this agent's own networks."""
+        """S2's perception from this agent's own networks, run by its engine."""
         return LearnedPerception(
             self.config,
             self.goal_head,
             self.room_type,
             self.object_category,
             self.instruction_reader,
+            networks=self._networks,
         )
+
+    def attach_checkpoint(self, loaded: LoadedCheckpoint) -> None:
+        """With ``model.perception.engine=onnxruntime``, run the perception networks with
+        the ONNX export of checkpoint ``loaded`` (its weights are this agent's): refused when
+        the export is missing or stale (:func:`~vla_gr.policy.onnx_export.onnx_networks`)."""
+        if self.config.perception.engine == "onnxruntime":
+            from vla_gr.policy.onnx_export import onnx_networks
+
+            self._networks = onnx_networks(loaded, self.perception_networks())
+            self.use_perception(self.learned_perception())
 
     def use_perception(self, perception: Perception) -> None:
         """Drive with ``perception`` as S2's (the privileged ablations pass the true mask or
