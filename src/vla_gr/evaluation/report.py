@@ -1,6 +1,6 @@
 """``report.md`` and ``report.html`` of an eval run: the table, breakdown bar charts, failure
-causes, requests not understood and readings that differ from their episode's description,
-and per pictured episode a top-down PNG and an MP4.
+causes, requests not understood, absent-object episodes and readings that differ from their
+episode's description, and per pictured episode a top-down PNG and an MP4.
 
 Pictures are made after the run, never in its loop: a selected episode is replayed from its
 recorded actions (:mod:`vla_gr.evaluation.video`). ``report.html`` is ``report.md`` rendered
@@ -38,8 +38,9 @@ TABLE_KEYS = (
 
 
 def table_row(metrics: dict) -> dict:
-    """The headline numbers of one metrics.json (plus decision p50 when measured)."""
-    row = {k: metrics["metrics"][k] for k in TABLE_KEYS}
+    """The headline numbers of one metrics.json (plus decision p50 when measured); a run of
+    absent-object episodes alone has none but ``episodes`` (0)."""
+    row = {k: metrics["metrics"][k] for k in TABLE_KEYS if k in metrics["metrics"]}
     row["episodes"] = metrics["metrics"]["episodes"]
     decision = metrics.get("latency_ms", {}).get("decision")
     if decision:
@@ -102,7 +103,7 @@ def replay_pictures(
         u.house,
         trajectory=xy,
         start=np.asarray(u.start_pose_world, dtype=np.float64),
-        goal_id=int(u.goal.instance_id),
+        goal_id=u.goal_id,
         robot=robot,
         size=256,
     )
@@ -153,6 +154,28 @@ def declared_lines(metrics: dict) -> list[str]:
         what = ", ".join(f"{outcome} {n}" for outcome, n in declared.items())
         lines.append(f"- Episodes the agent ended by declaring an outcome (no STOP): {what}.")
     return lines
+
+
+def absent_lines(metrics: dict) -> list[str]:
+    """The report's table of absent-object episodes ([] for a run without any)."""
+    a = metrics.get("absent_objects") or {}
+    n = a.get("episodes", 0)
+    if not n:
+        return []
+    spread = a["steps_to_declare"]
+    median = "-" if spread is None else f"{spread['median']:.0f}"
+    return [
+        "",
+        "## Absent objects",
+        "",
+        f"{n} episode(s) asked for an object the house does not have (not in SR / SPL):",
+        "",
+        "| declared not found | false STOPs | timeouts | not understood "
+        "| median steps to declare |",
+        "|---|---|---|---|---|",
+        f"| {a['declared_not_found']} ({a['declared_not_found_rate']:.1%}) | {a['false_stops']} "
+        f"({a['false_stop_rate']:.1%}) | {a['timeouts']} | {a['not_understood']} | {median} |",
+    ]
 
 
 def reading_lines(rows: Sequence[dict]) -> list[str]:
@@ -221,6 +244,7 @@ def write_report(out_dir: Path, metrics: dict, rows: Sequence[dict], pictures: d
             + ", ".join(str(i) for i in low[:50]),
         ]
     lines += declared_lines(metrics)
+    lines += absent_lines(metrics)
     lines += reading_lines(rows)
     lines += ["", "## Latency per decision (ms, batch 1)", ""]
     if metrics["latency_ms"]:

@@ -24,6 +24,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from vla_gr.envs.absent import requested_object
 from vla_gr.envs.metrics import aggregate
 from vla_gr.evaluation.causes import (
     CauseThresholds,
@@ -76,19 +77,22 @@ def _footprint_gap(obj, xy: tuple[float, float]) -> float:
 
 
 def _distractor_distances(env, xy: tuple[float, float]) -> dict[str, float]:
-    """Distance (m) from ``xy`` to each object of the goal's category but the goal.
+    """Distance (m) from ``xy`` to each object of the goal's category but the goal (every
+    one of the category asked for in an absent-object episode).
 
     Geodesic for distractors whose footprint may lie within ``success_distance``; for the
     others a straight-line lower bound (centre distance minus half-diagonal), which already
     exceeds ``success_distance`` and spares a fast-marching solve.
     """
     from vla_gr.envs.geodesic import distance_at, goal_distance_field
-    from vla_gr.envs.instructions import distractors
 
     u = env.unwrapped
+    spec = u.episode_spec
     out = {}
-    for oid in distractors(u.house, u.goal.instance_id):
-        obj = u.house.object(oid)
+    for obj in u.house.objects:
+        if obj.category != spec.goal_category or obj.instance_id == spec.goal_instance_id:
+            continue
+        oid = obj.instance_id
         bound = _footprint_gap(obj, xy)
         if bound > u.success_distance:
             out[str(oid)] = round(bound, 4)
@@ -151,7 +155,9 @@ def run_episode(
 
     Row keys: ``episode_index``, ``episode_id``, ``spec``, ``metrics`` (the final info),
     ``stopped`` (a STOP ended it; False when declared), ``cause`` (None on success; the
-    outcome's name when declared), ``declared`` (the outcome, else None), ``reading`` (the
+    outcome's name when declared), ``declared`` (the outcome, else None),
+    ``declared_not_found`` (it was ``"not_found"``), ``absent`` (an absent-object episode: no
+    goal, a STOP is false, "not found" is right; see :mod:`vla_gr.envs.absent`), ``reading`` (the
     agent's ``reading()``: how it read the request, None without a reader), ``num_rooms``,
     ``goal_category``, ``instruction_kind``, ``distractor_distances``, ``stopped_near`` (the
     nearest object) and ``wrong_stop`` (its :func:`wrong_stop_kind`) after a wrong STOP,
@@ -163,7 +169,7 @@ def run_episode(
     th = thresholds or CauseThresholds(success_distance=env.unwrapped.success_distance)
     obs, info = env.reset(options={"episode": int(index)})
     u = env.unwrapped
-    goal_id = int(u.goal.instance_id)
+    goal_id = int(u.episode_spec.goal_instance_id)  # -1 (no object) when absent
     agent.reset(episode_seed(seed, index))
     xy = [tuple(float(v) for v in u.robot_pose_world()[:2])]
     pixels = [_goal_pixels(obs, goal_id)]
@@ -208,7 +214,7 @@ def run_episode(
         declared=declared,
     )
     summary = agent.episode_summary()
-    goal = _object_summary(u.house, u.goal)
+    goal = requested_object(spec) if u.goal is None else _object_summary(u.house, u.goal)
     return {
         "episode_index": int(index),
         "episode_id": spec.episode_id,
@@ -217,6 +223,8 @@ def run_episode(
         "stopped": stopped,
         "cause": cause,
         "declared": declared,
+        "declared_not_found": declared == "not_found",
+        "absent": spec.absent,
         "reading": agent.reading(),
         "num_rooms": len(u.house.rooms),
         "goal_category": spec.goal_category,

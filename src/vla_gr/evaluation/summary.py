@@ -1,5 +1,11 @@
 """``metrics.json`` from episode rows: means, breakdowns, failure causes, declared outcomes,
-requests not understood, latency, parameters.
+requests not understood, absent objects, latency, parameters.
+
+Absent-object episodes (rows with ``absent``: the request names an object the house does not
+have) never enter SR / SPL, the breakdowns, the failure causes or the declared outcomes: those
+are the normal episodes', where declaring ``not_found`` is a failure (cause ``not_found``).
+:func:`absent_objects` counts them apart: right declarations, false STOPs, timeouts, and the
+steps it took to declare.
 
 Everything except ``latency_ms`` and ``timing`` (wall-clock measurements) is a pure function
 of the rows, so a resumed run writes the same ``metrics.json`` as an uninterrupted one.
@@ -21,7 +27,10 @@ TIMING_KEYS = ("latency_ms", "timing")
 
 
 def overall(rows: Sequence[dict]) -> dict:
-    """Means over episodes of the final metrics, plus collision share and steps."""
+    """Means over episodes of the final metrics, plus collision share and steps
+    (``{"episodes": 0}`` for no rows)."""
+    if not rows:
+        return {"episodes": 0}
     infos = [r["metrics"] for r in rows]
     out = aggregate(infos)
     out["collision_episode_share"] = float(np.mean([i["collisions"] > 0 for i in infos]))
@@ -124,6 +133,44 @@ def declared_counts(rows: Sequence[dict]) -> dict[str, int]:
     return counts
 
 
+def is_absent(row: dict) -> bool:
+    """Whether ``row`` is an absent-object episode's (rows of older runs never are)."""
+    return bool(row.get("absent", False))
+
+
+def _share(count: int, total: int) -> float | None:
+    return count / total if total else None
+
+
+def absent_objects(rows: Sequence[dict]) -> dict:
+    """The absent-object episodes of ``rows``: how many, how many the agent declared
+    ``not_found`` (the right outcome), ended with a STOP (false STOPs, by
+    :func:`~vla_gr.evaluation.causes.wrong_stop_kind`), ran out of steps (``timeouts``) or
+    declared ``not_understood``; their shares, and the steps to declare not found (median,
+    mean, max; None without a declaration)."""
+    absent = [r for r in rows if is_absent(r)]
+    n = len(absent)
+    declared = [r["metrics"]["steps"] for r in absent if r.get("declared") == "not_found"]
+    stops = sum(bool(r["stopped"]) for r in absent)
+    timeouts = sum(not r["stopped"] and r.get("declared") is None for r in absent)
+    steps = np.asarray(declared, dtype=np.float64)
+    spread = None
+    if declared:
+        spread = {"median": float(np.median(steps)), "mean": float(steps.mean()),
+                  "max": float(steps.max())}  # fmt: skip
+    return {
+        "episodes": n,
+        "declared_not_found": len(declared),
+        "false_stops": stops,
+        "timeouts": timeouts,
+        "not_understood": sum(r.get("declared") == "not_understood" for r in absent),
+        "declared_not_found_rate": _share(len(declared), n),
+        "false_stop_rate": _share(stops, n),
+        "steps_to_declare": spread,
+        "false_stops_by_kind": wrong_stop_counts(absent),
+    }
+
+
 def readings(rows: Sequence[dict]) -> list[dict]:
     """The rows whose agent read the request (a ``reading`` that is not None)."""
     return [r for r in rows if r.get("reading") is not None]
@@ -201,15 +248,17 @@ def summarize_rows(
     ran = len(rows) if ran is None else ran
     if not rows:
         raise ValueError("no episodes to summarize")
+    normal = [r for r in rows if not is_absent(r)]  # SR / SPL and the rest: normal episodes
     return {
         **header,
-        "metrics": overall(rows),
-        "breakdowns": {key: breakdown(rows, key) for key in BREAKDOWNS},
-        "failure_causes": cause_counts(rows),
-        "wrong_stops": wrong_stop_counts(rows),
-        "rejected_goals": rejected_goal_counts(rows),
-        "low_goal_confidence": low_confidence_episodes(rows),
-        "declared": declared_counts(rows),
+        "metrics": overall(normal),
+        "breakdowns": {key: breakdown(normal, key) for key in BREAKDOWNS},
+        "failure_causes": cause_counts(normal),
+        "wrong_stops": wrong_stop_counts(normal),
+        "rejected_goals": rejected_goal_counts(normal),
+        "low_goal_confidence": low_confidence_episodes(normal),
+        "declared": declared_counts(normal),
+        "absent_objects": absent_objects(rows),
         "requests_read": len(readings(rows)),
         "not_understood": not_understood_count(rows),
         "parameters": rows[0]["parameters"],

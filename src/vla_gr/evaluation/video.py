@@ -85,9 +85,7 @@ def replay_frames(env, row: dict, panel: int, stride: int) -> list[np.ndarray]:
     reset_to(env, row)
     u = env.unwrapped
     start = np.asarray(u.start_pose_world, dtype=np.float64)  # (3,)
-    recorder = EpisodeRecorder(
-        u.house, int(u.goal.instance_id), start, panel, float(u.max_depth), CAPTION_LINES
-    )
+    recorder = EpisodeRecorder(u.house, u.goal_id, start, panel, float(u.max_depth), CAPTION_LINES)
     recorder.add(*u.render_rgbd(panel), u.robot_pose_world(), caption(row, 0))
     actions = row["actions"]
     for t, action in enumerate(actions, start=1):
