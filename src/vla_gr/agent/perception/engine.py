@@ -13,9 +13,8 @@ picks what runs ``network`` at inference:
   agent's checkpoint (:mod:`vla_gr.policy.onnx_export`), tied there to the digest of the
   weights it was exported from (:func:`weights_digest`).
 
-Measured on the shipped agent (one thread, real frames): the goal head with its flip 11.6 ms
-(torch) -> 7.8 ms, the segmenter 1.3 -> 0.6 ms, the room check 0.18 -> 0.06 ms
-(``benchmarks/bench_perception_engine.py``).
+The shipped agent runs ``onnxruntime``: its perception takes about 0.6x PyTorch's time with
+the same decisions (``benchmarks/bench_perception_engine.py``; docs/experiments.md).
 """
 
 from __future__ import annotations
