@@ -195,3 +195,14 @@ def test_export_onnx_command(tmp_path, capsys):
     assert read_checkpoint(folder).manifest["files"] == before["files"]
     assert main(["export-onnx", str(tmp_path / "nothing")]) == 2
     assert capsys.readouterr().err.strip().count("\n") == 0
+
+
+def test_save_pretrained_writes_the_export_the_agent_runs(agents, tmp_path):
+    onnx, _ = agents
+    onnx.save_pretrained(tmp_path / "pretrained")
+    again = load_policy(tmp_path / "pretrained")
+    assert all(isinstance(n, OnnxNetwork) for n in again.perception.networks.values())
+    files = read_checkpoint(tmp_path / "pretrained").manifest["files"]
+    assert sorted(f for f in files if f.endswith(".onnx")) == sorted(
+        p.name for p in SHIPPED.glob("*.onnx")
+    )  # the same weights, the same files

@@ -74,7 +74,8 @@ class PolicyHubMixin(
         **push_to_hub_kwargs,
     ) -> str | None:
         """Write pretrained folder ``save_directory`` whole (an existing checkpoint there is
-        replaced, any other existing path refused): the mixin's files, then ``manifest.json``.
+        replaced, any other existing path refused): the mixin's files, then ``manifest.json``
+        (then the ONNX export of the perception when ``model.perception.engine=onnxruntime``).
         ``push_to_hub`` then uploads it as huggingface_hub's ``push_to_hub`` does (its URL is
         returned); ``config.json`` is always ``self.config``, so ``config`` must be None."""
         if config is not None:
@@ -88,6 +89,10 @@ class PolicyHubMixin(
             write(folder, model_card_kwargs=model_card_kwargs)
 
         folder = save_folder(save_directory, fill)
+        if self.config.perception.engine == "onnxruntime":  # what its perception runs
+            from vla_gr.policy.onnx_export import export_onnx
+
+            export_onnx(folder)
         log.info("pretrained %s saved to %s", type(self).__name__, folder)
         if push_to_hub:
             repo = repo_id or folder.name
