@@ -33,6 +33,10 @@ STAGE_KINDS: dict[str, tuple[str, tuple[str, ...]]] = {
     "instruction_reader": ("the agent + an instruction reader", ("checkpoint",)),
     "source": ("an existing checkpoint or store (path)", ()),
     "graft": ("the agent with another agent's part (part)", ("checkpoint", "donor")),
+    "adapt": (
+        "the agent with its goal head adapted on a store (training.adapt)",
+        ("checkpoint", "store"),
+    ),
 }
 ON_STALE = ("rerun", "refuse")
 

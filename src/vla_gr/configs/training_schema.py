@@ -104,6 +104,47 @@ class ReaderStageConfig:
             raise ValueError("training.instruction_reader.dev_sets must name at least one file")
 
 
+#: How an ``adapt`` stage fine-tunes the goal head: LoRA / OFT layers (merged before writing)
+#: or every goal-head weight (``full``, the comparison).
+ADAPT_METHODS = ("lora", "oft", "full")
+
+
+@dataclass
+class AdaptStageConfig:
+    """The goal head of a trained agent adapted on stored frames of a shifted world, e.g. a
+    held-out house style (``training.adapt``; a recipe's ``adapt`` stage,
+    :mod:`vla_gr.training.adapt`). LoRA / OFT weights are merged into the written agent."""
+
+    method: str = "lora"  # lora | oft (peft layers, merged away) | full (all goal-head weights)
+    # modules of model.goal_head given adapters (peft's matching: a name or its last parts);
+    # lora: Conv2d and Linear layers, oft: Linear layers only; full ignores them
+    targets: list[str] = field(default_factory=lambda: ["conv1", "conv2"])
+    rank: int = 8  # LoRA rank r; OFT: the number of blocks
+    alpha: float = 16.0  # LoRA scale: the update is multiplied by alpha / rank
+    steps: int = 600  # optimiser steps
+    batch_size: int = 32  # frames per step
+    lr: float = 2e-3  # peak learning rate (AdamW, warm-up then cosine)
+    warmup_steps: int = 20  # linear warm-up to lr
+    weight_decay: float = 1e-4  # AdamW weight decay on >= 2-D weights
+    val_ratio: float = 0.1  # stored episodes held out to measure the head before and after
+    flip_prob: float = 0.5  # frames mirrored left-right with their masks
+    paraphrase_prob: float = 0.3  # instructions rewritten in the training paraphrase words
+
+    def __post_init__(self) -> None:
+        check_choice("training.adapt.method", self.method, ADAPT_METHODS)
+        if self.method != "full" and not self.targets:
+            raise ValueError("training.adapt.targets must name at least one goal-head module")
+        for key in ("rank", "alpha", "steps", "batch_size", "lr"):
+            check_positive(f"training.adapt.{key}", getattr(self, key))
+        check_positive("training.adapt.warmup_steps", self.warmup_steps, allow_zero=True)
+        check_positive("training.adapt.weight_decay", self.weight_decay, allow_zero=True)
+        if not 0.0 < self.val_ratio < 1.0:
+            raise ValueError(f"training.adapt.val_ratio={self.val_ratio} must be in (0, 1)")
+        for key in ("flip_prob", "paraphrase_prob"):
+            if not 0.0 <= getattr(self, key) <= 1.0:
+                raise ValueError(f"training.adapt.{key}={getattr(self, key)} must be in [0, 1]")
+
+
 @dataclass
 class TrainingConfig:
     """Optimisation, data, precision, distribution and checkpointing of a training run."""
@@ -177,6 +218,8 @@ class TrainingConfig:
     )  # the object-category segmenter's stage
     # the instruction reader's stage
     instruction_reader: ReaderStageConfig = field(default_factory=ReaderStageConfig)
+    # the goal head adapted to a shifted world (an adapt stage): LoRA, OFT or full
+    adapt: AdaptStageConfig = field(default_factory=AdaptStageConfig)
 
     def __post_init__(self) -> None:
         check_choice("training.if_missing", self.if_missing, IF_MISSING)

@@ -23,6 +23,8 @@ category
 instruct- ``agent/``: + an instruction reader           checkpoint
 ion_reader
 graft     ``agent/``: + another agent's ``part``          checkpoint, donor
+adapt     ``agent/``: its goal head adapted on the       checkpoint, store
+          store's frames (LoRA / OFT merged, or full)
 source    an existing checkpoint or store (``path``)    -
 export    ``agent/``: the shipping checkpoint           checkpoint
 ======== ============================================ ==========================
@@ -268,6 +270,21 @@ def graft_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
     return graft_part(checkpoint, donor, stage.part, folder / "agent", stage.model_overrides)
 
 
+def adapt_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
+    """The input agent with its goal head adapted on the input store's frames
+    (``training.adapt``: LoRA / OFT merged into the weights, or full fine-tuning); an
+    interrupted stage starts again (minutes)."""
+    from vla_gr.training.adapt import adapt_goal_head
+
+    checkpoint, store = _inputs(stage, inputs, 2)
+    agent = folder / "agent"
+    adapt_goal_head(
+        checkpoint, _store_of(store), agent, cfg.training.adapt, seed=cfg.seed,
+        compute=_compute(cfg),
+    )  # fmt: skip
+    return agent
+
+
 def source_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
     """An existing checkpoint or store (``path``) as a stage's product, e.g. the shipped
     agent an ablation starts from; its digest decides whether later stages rerun."""
@@ -299,6 +316,7 @@ STAGES: dict[str, Callable[..., Path]] = {
     "instruction_reader": instruction_reader_stage,
     "source": source_stage,
     "graft": graft_stage,
+    "adapt": adapt_stage,
 }
 
 
