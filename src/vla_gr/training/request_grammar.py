@@ -100,12 +100,13 @@ _CHAT = (
     "what's the weather like?", "i'm hungry", "turn on the lights", "play some music",
 )  # fmt: skip
 #: Remarks and questions about a house object that ask the robot to go nowhere ("what's on
-#: tv tonight?"): the object word is no goal.
+#: tv tonight?"): the object word is no goal. No room is said in them: "in the attic" must
+#: stay a place the reader has to place or refuse.
 _REMARKS = (
     "what's on the {n} tonight?", "is the {n} on?", "the {n} is too loud", "who broke the {n}?",
     "the {n} needs water", "i love the {c} {n}", "did you clean the {n}?", "the {n} looks dusty",
     "is the {n} comfy?", "how much was the {n}?", "turn off the {n}", "we need a new {n}",
-    "the {n} in the {r} is new", "remind me to water the {n} later", "who left this on the {n}?",
+    "the {n} is new", "remind me to water the {n} later", "who left this on the {n}?",
     "someone spilled coffee on the {n}", "is the {n} still broken?", "don't touch the {n}",
     "what colour is the {n}?", "i bought a {c} {n} today", "the {n} got delivered",
     "the cat is sleeping on the {n} again", "how many {n}s do we have?", "nice {n}",
@@ -536,7 +537,6 @@ class RequestGrammar:
         return self._pick(rng, _REMARKS).format(
             n=self._noun(rng, category),
             c=self._colour(rng, self._pick(rng, list(COLOUR_WORDS))),
-            r=self._room(rng, self._pick(rng, self.rooms)),
         )
 
     def _negation(self, rng, noun: str, goal: str) -> list:
