@@ -183,7 +183,9 @@ def test_true_category_reads_the_request_as_the_checkpoint_does(dual):
     seen = []
     head = agent.policy.goal_head
     likelihood = head.likelihood
-    head.likelihood = lambda rgb, depth, text: seen.extend(text) or likelihood(rgb, depth, text)
+    head.likelihood = lambda rgb, depth, text, network=None: (
+        seen.extend(text) or likelihood(rgb, depth, text, network)
+    )
     obs = {
         "rgb": np.zeros((32, 32, 3), np.uint8),
         "depth": np.full((32, 32, 1), 2.0, np.float32),

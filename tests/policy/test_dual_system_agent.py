@@ -423,7 +423,7 @@ def test_the_object_checks_read_the_ticks_likelihood_and_reach_the_navigator():
     goal = np.zeros((32, 32), np.float32)
     goal[8:16, 8:16] = 1.0
     likelihood = {"pixels": goal}
-    model.goal_head.likelihood = lambda rgb, depth, text: (
+    model.goal_head.likelihood = lambda rgb, depth, text, network=None: (
         torch.from_numpy(likelihood["pixels"])[None],  # (1, H, W)
         torch.ones(1),  # (1,)
     )
@@ -462,7 +462,7 @@ def test_the_goal_head_and_the_checks_read_the_readers_reading_not_the_words():
     model.instruction_reader.read = lambda text: reading if text == said else None
     seen = []
     likelihood = model.goal_head.likelihood
-    model.goal_head.likelihood = lambda rgb, depth, text: (
+    model.goal_head.likelihood = lambda rgb, depth, text, network=None: (
         seen.extend(text) or likelihood(rgb, depth, text)
     )
     model.reset()
@@ -541,7 +541,7 @@ def test_anchor_not_goal_zeroes_the_goal_likelihood_on_the_anchors_pixels_only()
     probs = torch.zeros(1, classes, 32, 32)  # background everywhere, a sofa in the left half
     probs[:, 0, :, 16:] = 1.0
     probs[:, sofa, :, :16] = 1.0
-    model.object_category.probabilities = lambda rgb, depth: probs
+    model.object_category.probabilities = lambda rgb, depth, network=None: probs
 
     def said(text: str) -> dict:
         return {**_obs(), "instruction": text}

@@ -129,7 +129,7 @@ def test_trained_segmenter_is_written_with_the_object_check_and_the_rest_untouch
 
 def _percept(policy, obs: dict, goal: np.ndarray):
     """The policy's percept of ``obs`` when its goal head marks ``goal`` (H, W)."""
-    policy.goal_head.likelihood = lambda rgb, depth, text: (
+    policy.goal_head.likelihood = lambda rgb, depth, text, network=None: (
         torch.from_numpy(goal)[None],  # (1, H, W)
         torch.ones(1),  # (1,)
     )
