@@ -9,7 +9,9 @@ One control step of :class:`GroundedDualSystem` (batch 1, the env's observation)
 Before its first step the request is read (the perception's reader); a request it did not
 understand is not acted on: the step returns no motion and no STOP, and
 :attr:`GroundedDualSystem.declared_outcome` says ``"not_understood"`` (the caller ends the
-episode with ``env.unwrapped.declare``).
+episode with ``env.unwrapped.declare``). A plan that says the reachable house is searched
+without a goal (``NavPlan.not_found``, the navigator's own map) ends it the same way, as
+``"not_found"``.
 
 S2 = a perception (:mod:`vla_gr.agent.perception.percept`: one typed percept per tick: the goal
 likelihood, the room and object checks, the relation's anchor) + the
@@ -105,7 +107,8 @@ class GroundedDualSystem:
         self.last_percept: Percept | None = None  # of the last S2 tick
         self.max_goal_confidence = 0.0
         self.reading: Reading | None = None  # this episode's request, once read
-        self.declared_outcome: str | None = None  # "not_understood": it does not act
+        # "not_understood" or "not_found": it does not act (any more)
+        self.declared_outcome: str | None = None
 
     def episode_summary(self) -> dict:
         """What S2 concluded this episode: the highest goal confidence, the last mode, the
@@ -149,7 +152,8 @@ class GroundedDualSystem:
 
     def step(self, obs: Mapping) -> np.ndarray:
         """One control step on a single env observation -> action float32 (3,) (v, w, stop);
-        no motion and no STOP, with ``declared_outcome`` set, for a request not understood."""
+        no motion and no STOP, with ``declared_outcome`` set, for a request not understood or
+        once the plan says the object is not found."""
         read = {}
         if self.steps == 0 or self.reading is not None:  # read once; later steps hit its cache
             t0 = time.perf_counter()
@@ -157,11 +161,12 @@ class GroundedDualSystem:
             if self.steps == 0:
                 read["read"] = time.perf_counter() - t0  # the episode's one reading
             if self.reading is not None and not self.reading.understood:
-                self.declared_outcome = "not_understood"
-                self.last_timings = read
-                self.steps += 1
-                return np.zeros(3, dtype=np.float32)
+                return self._declare("not_understood", read)
+        if self.declared_outcome == "not_found":  # declared: asked again, it stays declared
+            return self._declare("not_found", read)
         timings = (self.plan_if_due(obs) or {}) | read
+        if self.plan is not None and self.plan.not_found:
+            return self._declare("not_found", timings)
         t1 = time.perf_counter()
         depth = np.asarray(obs["depth"], dtype=np.float32)  # (H, W, 1)
         pose = np.asarray(obs["pose"], dtype=np.float64).reshape(3)  # (3,)
@@ -170,3 +175,10 @@ class GroundedDualSystem:
         self.last_timings = timings
         self.steps += 1
         return action
+
+    def _declare(self, outcome: str, timings: dict[str, float]) -> np.ndarray:
+        """Declare ``outcome`` instead of acting: no motion, no STOP (float32 (3,) zeros)."""
+        self.declared_outcome = outcome
+        self.last_timings = timings
+        self.steps += 1
+        return np.zeros(3, dtype=np.float32)

@@ -13,7 +13,8 @@ Sections (``model.navigator.<section>.<key>``): ``look_around`` (the turn at the
 relation), ``approach`` (stop, verify, give a goal up), ``recovery`` (blocked, stuck, no path),
 ``traps`` (the same spot again and again), ``tight`` (planning for a thinner robot),
 ``local_planner`` (fine cells while planning thin), ``map_edits`` (the navigator's own marks
-on the map). ``turn_rate`` is the navigator's own: every open-loop turn uses it.
+on the map), ``not_found`` (the reachable house searched: declare the object not found).
+``turn_rate`` is the navigator's own: every open-loop turn uses it.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ __all__ = [
     "LookAroundConfig",
     "MapEditsConfig",
     "NavigatorConfig",
+    "NotFoundConfig",
     "RecoveryConfig",
     "TightConfig",
     "TrapsConfig",
@@ -261,6 +263,23 @@ class MapEditsConfig:
 
 
 @dataclass
+class NotFoundConfig:
+    """Declare the object not found when the agent's own map says the reachable house is
+    searched (``model.navigator.not_found``): no confirmed goal (none seen, or every one
+    rejected by its checks) and no way to any frontier at the robot's own radius, on end."""
+
+    # control steps on end without a confirmed goal or a way to a frontier at the robot's own
+    # radius (look-around aside; a way only planning thinner finds does not count) before
+    # declaring "not found": more than a whole stint of planning thinner (tight.steps), so the
+    # ways out of a false dead end (forgetting virtual obstacles, planning thinner, recoveries)
+    # are tried in full first (0 = never declare)
+    steps: int = 180
+
+    def __post_init__(self) -> None:
+        _check(self, "not_found", {"int >= 0": ("steps",)})
+
+
+@dataclass
 class NavigatorConfig:
     """S2's behaviour (metres, radians, control steps), one section per concern; the field
     has its own config."""
@@ -275,7 +294,13 @@ class NavigatorConfig:
     tight: TightConfig = field(default_factory=TightConfig)
     local_planner: LocalPlannerConfig = field(default_factory=LocalPlannerConfig)
     map_edits: MapEditsConfig = field(default_factory=MapEditsConfig)
+    not_found: NotFoundConfig = field(default_factory=NotFoundConfig)
 
     def __post_init__(self) -> None:
         if not 0.0 < self.turn_rate <= 1.0:
             raise ValueError(f"{_KEY}.turn_rate={self.turn_rate} must be in (0, 1]")
+        steps, thin = self.not_found.steps, self.tight.steps
+        if steps and steps <= thin:  # a stint of thinner planning alone would declare
+            raise ValueError(
+                f"{_KEY}.not_found.steps={steps} must be 0 or more than {_KEY}.tight.steps={thin}"
+            )

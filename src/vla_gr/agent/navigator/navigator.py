@@ -25,6 +25,10 @@ Modes and transitions (checked in this order every tick; settings are named belo
                  and so is one the field has found no way to for approach.unreachable_steps
     explore      no confirmed goal: follow the field's geodesic to the frontier
 
+Not found (``not_found.steps``): a plan says ``not_found`` once the map has had no confirmed
+goal and no way to a frontier at the robot's own radius (planning thinner does not count) for
+that long on end, the look around aside: the reachable house is searched.
+
 Multi-frame confirmation: a map cell becomes a goal for the field (``GRField.update``'s
 ``goal_gate``) only after goal pixels landed in it on ``confirmation.ticks`` different ticks,
 so a single false positive never attracts. Approach-and-verify: with
@@ -102,6 +106,8 @@ class NavPlan:
     # a fine local path (navigator.local_planner.enabled): the follower pursues nearer along it and
     # lets the robot's width through without side margin
     precise: bool = False
+    # the reachable house is searched without a goal (navigator.not_found): declare not found
+    not_found: bool = False
 
 
 class Navigator:
@@ -177,6 +183,7 @@ class Navigator:
         self.unreachable_count = 0  # ticks without a way to the goal, since tight planning
         self.out_of_reach = 0  # ticks on end without a way to the committed goal
         self.recover_left = 0
+        self.searched_ticks = 0  # ticks on end without a confirmed goal or a way to a frontier
         self.verify_count = 0
         self.dead_end_count = 0
         self.no_path_count = 0
@@ -249,6 +256,7 @@ class Navigator:
             self.tight_left -= 1
             if self.tight_left == 0:
                 self.field.set_planning_radius(self._radius)
+        thin = self.tight_left > 0  # this tick plans for a thinner robot
         if self.local is not None:
             self.local.observe(*self._project()[2:])
         self.map_edits.mark_visited(pose[0, :2].numpy())
@@ -265,6 +273,7 @@ class Navigator:
         p = pose[0].numpy().astype(np.float64)  # (3,)
         plan = self._decide(out, p, robot_xy, visible, goal_visible, distance, nearest)
         plan.goal_confidence, plan.goal_distance = confidence, distance
+        plan.not_found = self._searched(bool(out.has_path[0]) and not thin, plan)
         if plan.stop and not self.stop_evidence:
             self.stop_evidence = self._evidence(goal_cells, goal_visible, like, distance, nearest)
         plan.max_speed = cfg.tight.speed if self.tight_left > 0 else 1.0
@@ -362,6 +371,14 @@ class Navigator:
         return NavPlan(waypoints, mode, 0.0, False, precise=local is not None)
 
     # ------------------------------------------------------------------ pieces
+
+    def _searched(self, way: bool, plan: NavPlan) -> bool:
+        """The house is searched: no confirmed goal, STOP or ``way`` (a path at the robot's own
+        radius) on every tick of the last ``not_found.steps``, look around aside."""
+        steps = self.config.not_found.steps
+        open_way = self.committed or way or plan.stop or plan.mode == "look_around"
+        self.searched_ticks = 0 if open_way else self.searched_ticks + 1
+        return steps > 0 and self.searched_ticks >= self.steps_to_ticks(steps)
 
     def _reject_goal(self, centre: np.ndarray, reason: str) -> None:
         """Give up the confirmed goal with a cell centred at ``centre`` (2,) (metres from the
