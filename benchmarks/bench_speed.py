@@ -6,14 +6,16 @@ throughput of the same checkpoint on the same episodes, and whether the decision
         [--out benchmarks/results/bench_speed]
 
 The reference is a git commit (checked out once into a worktree under ``--worktrees``) or a
-folder holding a ``src/`` tree. Each repeat runs both codes in fresh processes, alternating
-which goes first, with one torch thread: the agent on ``--episodes`` episodes of ``--split``
-from ``--first`` (``bench_agent_latency.measure``: the tick is all of S2's work for a step,
-reading, perception, field and local planner), then, when ``--eval-episodes`` > 0, ``vla-gr
-eval`` of those episodes with 2 workers (episodes per minute, wall clock of the command).
-Quoted: per code, the median over repeats of each part's p50 / p95, and the ratios reference /
-today of those medians. Decisions: the per-episode outcomes and the largest difference of any
-action between the codes. Writes ``<out>.json`` and ``<out>.md``. Run it on a quiet machine.
+folder holding a ``src/`` tree. A relative ``--checkpoint`` is each code's own (the folder of
+that path in its tree: the reference runs the checkpoint as it was at its commit). Each repeat
+runs both codes in fresh processes, alternating which goes first, with one torch thread: the
+agent on ``--episodes`` episodes of ``--split`` from ``--first``
+(``bench_agent_latency.measure``: the tick is all of S2's work for a step, reading, perception,
+field and local planner), then, when ``--eval-episodes`` > 0, ``vla-gr eval`` of those episodes
+with 2 workers (episodes per minute, wall clock of the command). Quoted: per code, the median
+over repeats of each part's p50 / p95, and the ratios reference / today of those medians.
+Decisions: the per-episode outcomes and the largest difference of any action between the codes.
+Writes ``<out>.json`` and ``<out>.md``. Run it on a quiet machine.
 """
 
 from __future__ import annotations
@@ -94,12 +96,17 @@ def _env(src: Path) -> dict:
     return env
 
 
+def checkpoint_of(src: Path, checkpoint: Path) -> Path:
+    """``checkpoint`` as the code in ``src`` has it: a relative path is in its own tree."""
+    return checkpoint if checkpoint.is_absolute() else src.parent / checkpoint
+
+
 def run_agent(src: Path, args) -> dict:
     """Latency samples (ms) per part and per-episode outcomes/actions of the code in ``src``."""
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "agent.json"
         code = _CHILD.format(
-            bench=str(ROOT), checkpoint=str(args.checkpoint), split=args.split,
+            bench=str(ROOT), checkpoint=str(checkpoint_of(src, args.checkpoint)), split=args.split,
             first=args.first, episodes=args.episodes, out=str(out),
         )  # fmt: skip
         subprocess.run([sys.executable, "-c", code], env=_env(src), check=True, cwd=REPO)
@@ -110,7 +117,8 @@ def run_eval(src: Path, args) -> float:
     """Episodes per minute of ``vla-gr eval`` (2 workers) with the code in ``src``."""
     with tempfile.TemporaryDirectory() as tmp:
         command = [
-            sys.executable, "-m", "vla_gr.cli", "eval", f"checkpoint={args.checkpoint}",
+            sys.executable, "-m", "vla_gr.cli", "eval",
+            f"checkpoint={checkpoint_of(src, args.checkpoint)}",
             f"split={args.split}", f"first_episode={args.first}",
             f"num_episodes={args.eval_episodes}", "workers=2", f"output_dir={tmp}/eval",
             "eval.progress=false",
@@ -184,7 +192,7 @@ def table(result: dict) -> str:
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--reference", required=True, help="a commit, or a folder with src/")
-    parser.add_argument("--checkpoint", default="checkpoints/vla_gr_cpu")
+    parser.add_argument("--checkpoint", type=Path, default=Path("checkpoints/vla_gr_cpu"))
     parser.add_argument("--episodes", type=int, default=10)
     parser.add_argument("--first", type=int, default=100)
     parser.add_argument("--split", default="val")
