@@ -15,8 +15,9 @@ and episode videos, ``report.html`` (the same, with players). Run again with the
 ``metrics.json`` equals an uninterrupted run's.
 ``--config-name compare agents=[a,b]`` runs several agents on the same episodes and
 writes ``compare.md`` / ``compare.json``. After the table it prints, for an agent that reads
-requests, how many it did not fully understand. ``--cfg job`` prints the config it would run
-with (:func:`compose_from_cli`).
+requests, how many it did not fully understand, and for absent-object episodes (an episodes
+file with ``absent`` specs, ``benchmarks/absent_episodes.py``) how they ended. ``--cfg job``
+prints the config it would run with (:func:`compose_from_cli`).
 
 ``rollout_policy`` / ``summarize`` (from :mod:`vla_gr.evaluation.runner`, re-exported) are
 the library calls training's closed-loop validation uses: the same episode loop.
@@ -127,9 +128,11 @@ def run_from_cli(config_name: str, overrides: Sequence[str]) -> int:
         lines = [result["table"]]
         for agent, metrics in result["metrics"].items():
             lines += [f"{agent}: {line}" for line in understood_lines(metrics)]
+            lines += [f"{agent}: {line}" for line in absent_summary(metrics)]
     else:
         metrics = evaluate(cfg)
         lines = [format_table({metrics["agent"]: table_row(metrics)}), *understood_lines(metrics)]
+        lines += absent_summary(metrics)
     sys.stdout.write("\n".join(lines) + "\n")
     sys.stdout.flush()
     return 0
@@ -142,6 +145,22 @@ def understood_lines(metrics: dict) -> list[str]:
     if not read:
         return []
     return [f"{metrics['not_understood']} of {read} requests were not fully understood"]
+
+
+def absent_summary(metrics: dict) -> list[str]:
+    """One line on the absent-object episodes (``metrics.json``'s ``absent_objects``): how
+    many the agent declared not found, ended with a false STOP or ran out of steps on, and the
+    median steps to declare; [] without any."""
+    a = metrics.get("absent_objects") or {}
+    if not a.get("episodes"):
+        return []
+    spread = a["steps_to_declare"]
+    median = "-" if spread is None else f"{spread['median']:.0f}"
+    return [
+        f"absent objects ({a['episodes']} episodes, not in SR / SPL): declared not found "
+        f"{a['declared_not_found']}, false STOPs {a['false_stops']}, timeouts {a['timeouts']}, "
+        f"median steps to declare {median}"
+    ]
 
 
 if __name__ == "__main__":

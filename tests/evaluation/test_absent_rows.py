@@ -19,7 +19,7 @@ from vla_gr.evaluation.causes import WRONG_STOP_KINDS
 
 
 def test_eval_counts_absent_episodes_apart_and_a_normal_not_found_as_a_failure(
-    tmp_path, monkeypatch
+    tmp_path, monkeypatch, capsys
 ):
     absent, normal = sample_absent_episode("val", 0, num_rooms=2), sample_episode("val", 0)
     file = save_episodes(tmp_path / "absent.jsonl", [absent, normal])
@@ -30,6 +30,11 @@ def test_eval_counts_absent_episodes_apart_and_a_normal_not_found_as_a_failure(
     args = [f"output_dir={out}", *FAST, "eval.video_per_cause=1", "agent=declares",
             f"episodes={file}", "env.max_episode_steps=5", "env.image_size=16"]  # fmt: skip
     assert run_from_cli("config_debug", args) == 0
+    printed = capsys.readouterr().out.strip().splitlines()
+    assert printed[-1] == (
+        "absent objects (1 episodes, not in SR / SPL): declared not found 1, false STOPs 0, "
+        "timeouts 0, median steps to declare 2"
+    )
     a, n = rows_of(out)
     assert a["absent"] is True and a["declared_not_found"] is True and a["cause"] == "not_found"
     assert a["spec"]["absent"] is True and a["metrics"]["distance_to_goal"] == np.inf
