@@ -83,15 +83,6 @@ class ReaderStageConfig:
                 "dev_c",
                 "dev_not_understood",
                 "dev_not_understood_b",
-                # blind sets once, development sets since (benchmarks/language/README.md)
-                "blind_d",
-                "blind_e",
-                "blind_f",
-                "blind_not_understood",
-                "blind_not_understood_c",
-                "blind_not_understood_d",
-                "blind_not_understood_e",
-                "blind_not_understood_f",
             )
         ]  # fmt: skip
     )

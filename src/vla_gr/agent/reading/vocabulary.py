@@ -88,8 +88,7 @@ RELATION_WORDS = _words(
     "facing opposite right behind between with"
 )
 NEGATION_WORDS = _words(
-    "not no isn't aren't wasn't don't doesn't never except but without other unless nor neither "
-    "another different skip avoid"
+    "not no isn't aren't wasn't don't doesn't never except but without other unless nor neither"
 )
 SEQUENCE_WORDS = frozenset(
     ["then", "after", "afterwards", "first", "next", "later", "finally", "before", "also"]
