@@ -18,7 +18,7 @@ from vla_gr.configs.training_schema import AdaptStageConfig
 from vla_gr.evaluation.harness import evaluate
 from vla_gr.policy import VLAGRPolicy, load_policy
 from vla_gr.train import train
-from vla_gr.training.adapt import _windows, add_adapters, merged_difference
+from vla_gr.training.adapt import add_adapters, frame_windows, merged_difference
 from vla_gr.training.agent_stage import build_agent_from
 from vla_gr.training.pipeline import run_pipeline
 from vla_gr.training.stages import Services
@@ -39,7 +39,7 @@ def store(tmp_path_factory) -> Path:
 
 def _frames(store: Path, n: int = 6) -> dict:
     """``n`` stored windows of the held-out episodes as one batch."""
-    windows = _windows(store, "val", AdaptStageConfig(), seed=0)
+    windows = frame_windows(store, "val", AdaptStageConfig(), seed=0)
     items = [windows[i] for i in range(0, len(windows), max(1, len(windows) // n))][:n]
     return torch.utils.data.default_collate(items)
 

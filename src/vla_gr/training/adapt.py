@@ -33,7 +33,7 @@ from vla_gr.training.part_training import ON_CPU, Compute
 
 log = logging.getLogger(__name__)
 
-__all__ = ["MERGE_ATOL", "adapt_goal_head", "add_adapters", "merged_difference"]
+__all__ = ["MERGE_ATOL", "adapt_goal_head", "add_adapters", "frame_windows", "merged_difference"]
 
 #: Largest |merged - unmerged| goal-head logit accepted (float32 rounding of W + B A).
 MERGE_ATOL = 1e-4
@@ -83,7 +83,7 @@ def merged_difference(policy: nn.Module, batch: dict) -> float:
     return diff
 
 
-def _windows(store: Path, split: str, adapt, seed: int):
+def frame_windows(store: Path, split: str, adapt, seed: int):
     """The store's last-frame windows of ``split`` (episodes held out by ``val_ratio``),
     RGB as uint8 and depth as float16 in memory (half the bytes; 2.4 mm at 5 m)."""
     from vla_gr.data.dataset import EpisodeWindowDataset
@@ -118,7 +118,7 @@ def adapt_goal_head(
     log.info("adapt (%s): %d of %d goal-head parameters train (%.2f%%)", adapt.method,
              counts["trainable_parameters"], counts["goal_head_parameters"],
              100 * counts["share_of_goal_head"])  # fmt: skip
-    train_set, val_set = (_windows(Path(store), s, adapt, seed) for s in ("train", "val"))
+    train_set, val_set = (frame_windows(Path(store), s, adapt, seed) for s in ("train", "val"))
     picked = np.random.default_rng(seed).permutation(len(val_set))[:VAL_WINDOWS]
     val_loader = DataLoader(Subset(val_set, np.sort(picked).tolist()), batch_size=adapt.batch_size)
     draws = RandomSampler(
