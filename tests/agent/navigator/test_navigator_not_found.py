@@ -3,6 +3,7 @@ had no confirmed goal and no way to a frontier for ``not_found.steps`` on end.""
 
 import math
 
+import numpy as np
 import pytest
 
 from tests.agent.navigator.navigator_scenes import make_nav, room_depth, tick, wall_goal
@@ -48,8 +49,21 @@ def test_a_room_half_seen_keeps_a_way_to_its_frontier_and_is_never_searched():
     nav = make_nav(not_found={"steps": 20}, tight={"steps": 10}, look_around={"angle": 0.0})
     for _ in range(60):  # facing one wall, the robot never turns: the rest is unseen
         plan = tick(nav, (0.0, 0.0, 0.0))
-        assert not plan.not_found and nav.searched_ticks == 0
+        assert not plan.not_found and nav.search.ticks == 0
     assert nav.field.maps.frontier.any() and nav.last_output.has_path[0]
+
+
+def test_newly_seen_house_starts_the_count_again_and_off_never_declares():
+    nav = make_nav(not_found={"steps": 20, "new_area": 2.0}, tight={"steps": 10})
+    _searched_room(nav, FULL_TURN + 10)
+    assert nav.search.ticks == 10
+    pose = np.array((0.0, 0.0, 0.0), np.float32)
+    depth = room_depth(pose, room=(-3.0, 6.0, -2.0, 2.0))  # seen through where a wall was
+    plan = nav.plan({"depth": depth, "pose": pose}, np.zeros(depth.shape[:2], np.float32), 1.0)
+    assert not nav.last_output.has_path[0]  # still no way (the old wall stays mapped) ...
+    assert nav.search.ticks == 0 and not plan.not_found  # ... but more house was seen
+    plan = nav.plan({"depth": depth, "pose": pose}, np.zeros(depth.shape[:2], np.float32), 1.0)
+    assert nav.search.ticks == 1  # nothing new any more: counting again
 
 
 def test_a_way_only_a_thinner_robot_takes_does_not_count_and_a_stint_alone_never_declares():
@@ -60,7 +74,7 @@ def test_a_way_only_a_thinner_robot_takes_does_not_count_and_a_stint_alone_never
     for _ in range(12):
         plan = tick(nav, (0.0, 0.0, 0.0))
         assert nav.last_output.has_path[0] and not plan.not_found
-        counts.append(nav.searched_ticks)
+        counts.append(nav.search.ticks)
     assert counts == [*range(1, 10), 0, 0, 0]  # thin ticks count; the own radius's way resets
 
 
@@ -69,6 +83,8 @@ def test_bad_steps_name_the_key_and_a_stint_of_thinner_planning_alone_never_decl
 
     with pytest.raises(ValueError, match=r"^model\.navigator\.not_found\.steps=-1 must be >= 0"):
         NotFoundConfig(steps=-1)
+    with pytest.raises(ValueError, match=r"^model\.navigator\.not_found\.new_area=-1\.0 must"):
+        NotFoundConfig(new_area=-1.0)
     with pytest.raises(ValueError, match=r"not_found\.steps=150 must be 0 or more than .*tight"):
         NavigatorConfig(not_found=NotFoundConfig(150), tight=TightConfig(steps=150))
     NavigatorConfig(not_found=NotFoundConfig(0), tight=TightConfig(steps=150))  # off: any

@@ -266,7 +266,8 @@ class MapEditsConfig:
 class NotFoundConfig:
     """Declare the object not found when the agent's own map says the reachable house is
     searched (``model.navigator.not_found``): no confirmed goal (none seen, or every one
-    rejected by its checks) and no way to any frontier at the robot's own radius, on end."""
+    rejected by its checks), no way to any frontier at the robot's own radius and (almost)
+    nothing newly seen, on end."""
 
     # control steps on end without a confirmed goal or a way to a frontier at the robot's own
     # radius (look-around aside; a way only planning thinner finds does not count) before
@@ -274,9 +275,12 @@ class NotFoundConfig:
     # ways out of a false dead end (forgetting virtual obstacles, planning thinner, recoveries)
     # are tried in full first (0 = never declare)
     steps: int = 180
+    # m2 the map may grow by while those steps run; more starts them again (planning thinner
+    # got the robot through a narrow passage into house it had not seen)
+    new_area: float = 2.0
 
     def __post_init__(self) -> None:
-        _check(self, "not_found", {"int >= 0": ("steps",)})
+        _check(self, "not_found", {"int >= 0": ("steps",), ">= 0": ("new_area",)})
 
 
 @dataclass

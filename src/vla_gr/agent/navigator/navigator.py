@@ -25,9 +25,9 @@ Modes and transitions (checked in this order every tick; settings are named belo
                  and so is one the field has found no way to for approach.unreachable_steps
     explore      no confirmed goal: follow the field's geodesic to the frontier
 
-Not found (``not_found.steps``): a plan says ``not_found`` once the map has had no confirmed
-goal and no way to a frontier at the robot's own radius (planning thinner does not count) for
-that long on end, the look around aside: the reachable house is searched.
+Not found (:mod:`vla_gr.agent.navigator.search`, ``not_found``): a plan says ``not_found`` once
+the map has had no confirmed goal, no way to a frontier at the robot's own radius (planning
+thinner does not count) and almost no new house for ``steps`` on end: the house is searched.
 
 Multi-frame confirmation: a map cell becomes a goal for the field (``GRField.update``'s
 ``goal_gate``) only after goal pixels landed in it on ``confirmation.ticks`` different ticks,
@@ -81,6 +81,7 @@ from vla_gr.agent.navigator.config import NavigatorConfig
 from vla_gr.agent.navigator.goal_checks import GoalChecks
 from vla_gr.agent.navigator.local_planner import LocalPlanner
 from vla_gr.agent.navigator.map_edits import MapEdits
+from vla_gr.agent.navigator.search import SearchCount
 from vla_gr.core.gr_field.config import GRFieldConfig
 from vla_gr.core.gr_field.mapping import points_to_cells
 from vla_gr.core.gr_field.planning import GRField
@@ -183,7 +184,6 @@ class Navigator:
         self.unreachable_count = 0  # ticks without a way to the goal, since tight planning
         self.out_of_reach = 0  # ticks on end without a way to the committed goal
         self.recover_left = 0
-        self.searched_ticks = 0  # ticks on end without a confirmed goal or a way to a frontier
         self.verify_count = 0
         self.dead_end_count = 0
         self.no_path_count = 0
@@ -198,6 +198,9 @@ class Navigator:
         self.checks = GoalChecks(
             self.config.goal_checks, self.config.confirmation.ticks, shape, self.field.cell_size
         )
+        self.search = SearchCount(
+            self.config.not_found, self.steps_to_ticks(self.config.not_found.steps)
+        )  # is the reachable house searched?
         if self.local is not None:
             self.local.reset()
         self._tick_frame, self._projected = None, None  # this tick's depth, pose; their cells
@@ -273,7 +276,11 @@ class Navigator:
         p = pose[0].numpy().astype(np.float64)  # (3,)
         plan = self._decide(out, p, robot_xy, visible, goal_visible, distance, nearest)
         plan.goal_confidence, plan.goal_distance = confidence, distance
-        plan.not_found = self._searched(bool(out.has_path[0]) and not thin, plan)
+        way = self.committed or plan.stop or plan.mode == "look_around"
+        way = way or (bool(out.has_path[0]) and not thin)  # a frontier at the robot's own radius
+        plan.not_found = self.search.update(
+            way, float(maps.explored[0].sum()) * self.field.cell_size**2
+        )
         if plan.stop and not self.stop_evidence:
             self.stop_evidence = self._evidence(goal_cells, goal_visible, like, distance, nearest)
         plan.max_speed = cfg.tight.speed if self.tight_left > 0 else 1.0
@@ -371,14 +378,6 @@ class Navigator:
         return NavPlan(waypoints, mode, 0.0, False, precise=local is not None)
 
     # ------------------------------------------------------------------ pieces
-
-    def _searched(self, way: bool, plan: NavPlan) -> bool:
-        """The house is searched: no confirmed goal, STOP or ``way`` (a path at the robot's own
-        radius) on every tick of the last ``not_found.steps``, look around aside."""
-        steps = self.config.not_found.steps
-        open_way = self.committed or way or plan.stop or plan.mode == "look_around"
-        self.searched_ticks = 0 if open_way else self.searched_ticks + 1
-        return steps > 0 and self.searched_ticks >= self.steps_to_ticks(steps)
 
     def _reject_goal(self, centre: np.ndarray, reason: str) -> None:
         """Give up the confirmed goal with a cell centred at ``centre`` (2,) (metres from the
