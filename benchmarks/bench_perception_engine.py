@@ -31,35 +31,14 @@ import torch
 from vla_gr.agent.observations import env_obs_to_frame
 from vla_gr.agent.perception.engine import OnnxNetwork
 from vla_gr.checkpoint import read_checkpoint
-from vla_gr.data.collect import make_env
 from vla_gr.machine import describe_machine, machine_line
 from vla_gr.policy import VLAGRPolicy
-from vla_gr.policy.onnx_export import RECORD
+from vla_gr.policy.onnx_export import RECORD, tick_observations
 
 logger = logging.getLogger("bench_perception_engine")
 
 ROOT = Path(__file__).resolve().parent
 DEFAULT_OUT = ROOT / "results" / "bench_perception_engine"
-
-
-def tick_observations(policy: VLAGRPolicy, episodes: int, steps: int) -> list[dict]:
-    """The observations of ``policy``'s S2 ticks in its first ``steps`` steps of ``val``
-    episodes 0 .. ``episodes`` - 1."""
-    env = make_env({"split": "val", "semantic": False})
-    seen = []
-    try:
-        for episode in range(episodes):
-            obs, _ = env.reset(options={"episode": episode})
-            policy.reset()
-            for step in range(steps):
-                if step % policy.dual_system.plan_every == 0:
-                    seen.append(obs)
-                obs, _, terminated, truncated, _ = env.step(policy.select_action(obs))
-                if terminated or truncated:
-                    break
-    finally:
-        env.close()
-    return seen
 
 
 def network_inputs(policy: VLAGRPolicy, obs: dict) -> dict[str, tuple[torch.Tensor, ...]]:
@@ -158,7 +137,7 @@ def main(argv: list[str] | None = None) -> dict:
         for engine in ("torch", "onnxruntime")
     }
     reference, onnx = engines["torch"], engines["onnxruntime"]
-    frames = tick_observations(onnx, args.episodes, args.steps)
+    frames = tick_observations(onnx, range(args.episodes), args.steps)
     inputs = [network_inputs(reference, obs) for obs in frames]
     runners = {"torch": reference.perception_networks(), "onnxruntime": onnx.perception.networks}
     with tempfile.TemporaryDirectory() as tmp:

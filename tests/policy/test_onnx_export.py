@@ -16,7 +16,7 @@ from vla_gr.agent.perception.engine import OnnxNetwork
 from vla_gr.checkpoint import MODEL_FILE, CheckpointError, add_files, read_checkpoint
 from vla_gr.data.collect import make_env
 from vla_gr.policy import load_policy
-from vla_gr.policy.onnx_export import RECORD, export_onnx
+from vla_gr.policy.onnx_export import RECORD, export_onnx, tick_observations
 
 pytest.importorskip("onnx")
 
@@ -33,22 +33,7 @@ def agents():
 @pytest.fixture(scope="module")
 def ticks(agents):
     """Observations of the shipped agent's S2 ticks: its first 15 steps of val 0, 3 and 7."""
-    policy = agents[0]
-    env = make_env({"split": "val", "semantic": False})
-    seen = []
-    try:
-        for episode in (0, 3, 7):
-            obs, _ = env.reset(options={"episode": episode})
-            policy.reset()
-            for step in range(15):
-                if step % policy.dual_system.plan_every == 0:
-                    seen.append(obs)
-                obs, _, terminated, truncated, _ = env.step(policy.select_action(obs))
-                if terminated or truncated:
-                    break
-    finally:
-        env.close()
-    return seen
+    return tick_observations(agents[0], (0, 3, 7), 15)
 
 
 def _copy(tmp_path: Path) -> Path:

@@ -30,7 +30,14 @@ from vla_gr.checkpoint import CheckpointError, LoadedCheckpoint, add_files, read
 
 log = logging.getLogger(__name__)
 
-__all__ = ["RECORD", "TOLERANCE", "export_onnx", "onnx_networks", "probe_inputs"]
+__all__ = [
+    "RECORD",
+    "TOLERANCE",
+    "export_onnx",
+    "onnx_networks",
+    "probe_inputs",
+    "tick_observations",
+]
 
 #: The manifest key of the export's record.
 RECORD = "onnx"
@@ -123,3 +130,26 @@ def onnx_networks(loaded: LoadedCheckpoint, modules: Mapping[str, nn.Module]) ->
             )
         out[name] = OnnxNetwork(path / entry["file"])
     return out
+
+
+def tick_observations(policy, episodes, steps: int, split: str = "val") -> list[dict]:
+    """The observations ``policy`` (a dual-system agent) plans from at its S2 ticks in its
+    first ``steps`` steps of each of ``episodes`` (indices of ``split``): the real frames an
+    export is compared with PyTorch on."""
+    from vla_gr.data.collect import make_env  # the env and the collectors import the policy
+
+    env = make_env({"split": split, "semantic": False})
+    seen = []
+    try:
+        for episode in episodes:
+            obs, _ = env.reset(options={"episode": episode})
+            policy.reset()
+            for step in range(steps):
+                if step % policy.dual_system.plan_every == 0:
+                    seen.append(obs)
+                obs, _, terminated, truncated, _ = env.step(policy.select_action(obs))
+                if terminated or truncated:
+                    break
+    finally:
+        env.close()
+    return seen
