@@ -88,7 +88,8 @@ def load_reader(path: str):
 
 def format_reading(text: str, reading) -> list[str]:
     """Aligned lines of ``reading`` (a ``Reading``) of request ``text``: the request,
-    understood, each field with its confidence, the unknown words, the reason."""
+    understood, each field with its confidence, how sure it is that the request asks to go
+    somewhere (with the intent head), the unknown words, the reason."""
     from vla_gr.text_fold import fold_to_ascii
 
     fields = reading.as_dict()
@@ -100,6 +101,8 @@ def format_reading(text: str, reading) -> list[str]:
     for name in _FIELDS:
         sure = confidence.get(name)
         rows.append((name, _text(fields.get(name)), "-" if sure is None else f"{sure:.2f}"))
+    if "request" in confidence:  # the intent head's probability that it asks to go anywhere
+        rows.append(("asks", f"to go somewhere, confidence {confidence['request']:.2f}", ""))
     rows.append(("unknown", ", ".join(fields.get("unknown") or []) or "-", ""))
     rows.append(("reason", reading.reason or "-", ""))
     width = max(len(label) for label, _, _ in rows) + 2

@@ -59,7 +59,7 @@ def test_every_stage_of_a_gpu_recipe_trains_the_dual_system(name):
     kinds = [stage.kind for stage in cfg.pipeline.stages]
     assert kinds == [
         "collect", "train", "rollout", "dagger", "train", "room_type", "object_category",
-        "rollout", "s1_data", "s1", "instruction_reader", "export",
+        "rollout", "s1_data", "s1", "instruction_reader", "request_intent", "export",
     ]  # fmt: skip
     for stage in cfg.pipeline.stages:
         _, stage_cfg = stage_config(resolved, stage)  # every stage's config is valid

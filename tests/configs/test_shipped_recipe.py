@@ -47,6 +47,8 @@ def test_the_shipped_recipe_ends_in_the_shipped_checkpoints_model_settings():
         elif stage.kind == "instruction_reader":
             written += ["instruction_reader.enabled=true",
                         *stage_cfg.training.instruction_reader.settings]  # fmt: skip
+        elif stage.kind == "request_intent":
+            written.append("instruction_reader.intent=true")
     model = OmegaConf.merge(
         OmegaConf.to_container(resolved.model, resolve=True), OmegaConf.from_dotlist(written)
     )
@@ -60,6 +62,10 @@ def test_the_shipped_recipe_ends_in_the_shipped_checkpoints_model_settings():
     for key in ("temperature", "min_confidence"):
         assert want.pop(f"instruction_reader.{key}") == chosen[key]
         rebuilt.pop(f"instruction_reader.{key}")
+    # and min_intent by the intent stage
+    intent = loaded.state["request_intent_training"]["development"]["min_intent"]
+    assert want.pop("instruction_reader.min_intent") == intent
+    rebuilt.pop("instruction_reader.min_intent")
     assert {k: (rebuilt.get(k), want.get(k)) for k in rebuilt.keys() | want.keys()
             if rebuilt.get(k) != want.get(k)} == {}  # fmt: skip
-    assert [s.name for s in cfg.pipeline.stages][-1] == "shipped" and len(cfg.pipeline.stages) == 33
+    assert [s.name for s in cfg.pipeline.stages][-1] == "shipped" and len(cfg.pipeline.stages) == 34

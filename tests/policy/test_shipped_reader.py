@@ -1,6 +1,7 @@
 """The shipped agent's reader on hand-written requests of every shape the issue names: the
 noun said first, an appositive, a possessive, a relative clause, a typing slip, capitals,
-curly quotes; and requests it must refuse, each with its one-line reason."""
+curly quotes; and requests it must refuse, each with its one-line reason (remarks about a house
+object that ask for nothing among them)."""
 
 from __future__ import annotations
 
@@ -36,6 +37,9 @@ REFUSED = [
     ("take me to the pink sofa", "'pink'"),
     ("drive to the khaki bed", "'khaki'"),
     ("lol ok", "I can find"),
+    ("that green chair is honestly so ugly lol", "does not ask me to go anywhere"),
+    ("has anyone watered the blue plant this week?", "does not ask me to go anywhere"),
+    ("my red chair is broken", "does not ask me to go anywhere"),
 ]
 
 

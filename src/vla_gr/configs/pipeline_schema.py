@@ -31,6 +31,10 @@ STAGE_KINDS: dict[str, tuple[str, tuple[str, ...]]] = {
         ("checkpoint", "store"),
     ),
     "instruction_reader": ("the agent + an instruction reader", ("checkpoint",)),
+    "request_intent": (
+        "the agent's reader + a request intent head (training.request_intent)",
+        ("checkpoint",),
+    ),
     "source": ("an existing checkpoint or store (path)", ()),
     "graft": ("the agent with another agent's part (part)", ("checkpoint", "donor")),
     "adapt": (

@@ -95,6 +95,47 @@ class ReaderStageConfig:
             raise ValueError("training.instruction_reader.dev_sets must name at least one file")
 
 
+@dataclass
+class IntentStageConfig:
+    """The reader's request intent head trained by a recipe stage on grammar requests against
+    WordNet's statements, ``min_intent`` chosen on development sets (``training.request_intent``,
+    :mod:`vla_gr.training.request_intent`)."""
+
+    count: int = 12000  # grammar requests, and as many statements
+    steps: int = 1500  # optimiser steps
+    batch_size: int = 256  # sentences per step
+    lr: float = 3e-3  # learning rate
+    # hand-written development requests: the reader's and the blind sets used since
+    dev_sets: list[str] = field(
+        default_factory=lambda: [
+            f"benchmarks/language/{name}.jsonl"
+            for name in (
+                "dev_requests",
+                "dev_a",
+                "dev_b",
+                "dev_c",
+                "dev_not_understood",
+                "dev_not_understood_b",
+                "blind_d",
+                "blind_e",
+                "blind_f",
+                "blind_not_understood",
+                "blind_not_understood_c",
+                "blind_not_understood_d",
+                "blind_not_understood_e",
+                "blind_not_understood_f",
+                "blind_not_understood_g",
+            )
+        ]  # fmt: skip
+    )
+
+    def __post_init__(self) -> None:
+        for key in ("count", "steps", "batch_size", "lr"):
+            check_positive(f"training.request_intent.{key}", getattr(self, key))
+        if not self.dev_sets:
+            raise ValueError("training.request_intent.dev_sets must name at least one file")
+
+
 #: How an ``adapt`` stage fine-tunes the goal head: LoRA / OFT layers (merged before writing)
 #: or every goal-head weight (``full``, the comparison).
 ADAPT_METHODS = ("lora", "oft", "full")
@@ -209,6 +250,8 @@ class TrainingConfig:
     )  # the object-category segmenter's stage
     # the instruction reader's stage
     instruction_reader: ReaderStageConfig = field(default_factory=ReaderStageConfig)
+    # the reader's request intent head (a request_intent stage)
+    request_intent: IntentStageConfig = field(default_factory=IntentStageConfig)
     # the goal head adapted to a shifted world (an adapt stage): LoRA, OFT or full
     adapt: AdaptStageConfig = field(default_factory=AdaptStageConfig)
 

@@ -193,15 +193,15 @@ def calibrate_reader(reader: InstructionReader, rows: list[dict]) -> dict:
 
     c = reader.config
     texts = [normalise_request(row["request"]) for row in rows]
-    words, logits = reader.tag_logits([request_words(t) for t in texts])  # encoded once
+    words, logits, intents = reader.tag_logits([request_words(t) for t in texts])  # once
 
     def scores(temperature: float, threshold: float) -> dict:
         saved = c.min_confidence
         c.min_confidence = threshold
         try:
             readings = [
-                reader.decode(t, w, torch.softmax(x / temperature, dim=-1))
-                for t, w, x in zip(texts, words, logits)
+                reader.decode(t, w, torch.softmax(x / temperature, dim=-1), p)
+                for t, w, x, p in zip(texts, words, logits, intents)
             ]
         finally:
             c.min_confidence = saved

@@ -385,6 +385,19 @@ class RequestGrammar:
             seg += [(colour, colour_tag), (self._pick(rng, ("one", "one", "")), "O")]
         return seg
 
+    def goal_description(self, rng: np.random.Generator) -> str:
+        """A house object described as a request would ("the green couch in the kitchen",
+        "my kitchen's plant"), for sentences that name one and ask for nothing."""
+        goal = self._pick(rng, self.goal_categories)
+        colours = list(COLOUR_WORDS)
+        colour = self._colour(rng, self._pick(rng, colours)) if rng.random() < 0.6 else None
+        room = self._room(rng, self._pick(rng, self.rooms)) if rng.random() < 0.25 else None
+        anchor = None
+        if rng.random() < 0.15:
+            anchor = self._noun(rng, self._pick(rng, [c for c in self.categories if c != goal]))
+        segments = self._goal_phrase(rng, self._noun(rng, goal), colour, room, anchor)
+        return " ".join(text for text, _ in segments if text)
+
     # -- one request ------------------------------------------------------------------------
     def sample(self, rng: np.random.Generator) -> LabelledRequest:
         fields = {"category": None, "color": None, "room": None, "anchor": None}

@@ -22,6 +22,8 @@ object_   ``agent/``: + an object-category segmenter    checkpoint, store
 category
 instruct- ``agent/``: + an instruction reader           checkpoint
 ion_reader
+request_  ``agent/``: + the reader's request intent      checkpoint
+intent    head
 graft     ``agent/``: + another agent's ``part``          checkpoint, donor
 adapt     ``agent/``: its goal head adapted on the       checkpoint, store
           store's frames (LoRA / OFT merged, or full)
@@ -31,7 +33,8 @@ export    ``agent/``: the shipping checkpoint           checkpoint
 
 Under torchrun (``WORLD_SIZE`` > 1) the kinds of :data:`EVERY_RANK` run on every rank:
 ``collect`` and ``rollout`` once, split across the ranks (:mod:`.ranks`); ``train`` with DDP;
-``s1``, ``room_type``, ``object_category`` and ``instruction_reader`` data parallel
+``s1``, ``room_type``, ``object_category``, ``instruction_reader`` and ``request_intent``
+data parallel
 (:mod:`.part_training`), rank 0 writing. The other kinds run on rank 0 while the others wait.
 Training kinds run on ``training.device`` in ``training.amp`` precision.
 """
@@ -55,7 +58,16 @@ __all__ = ["EVERY_RANK", "STAGES", "Services"]
 
 #: Stage kinds every rank runs under torchrun (see the module docstring).
 EVERY_RANK = frozenset(
-    {"collect", "train", "rollout", "s1", "room_type", "object_category", "instruction_reader"}
+    {
+        "collect",
+        "train",
+        "rollout",
+        "s1",
+        "room_type",
+        "object_category",
+        "instruction_reader",
+        "request_intent",
+    }  # fmt: skip
 )
 
 
@@ -261,6 +273,21 @@ def instruction_reader_stage(stage, cfg, resolved, folder: Path, inputs, service
     return agent
 
 
+def request_intent_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
+    """The input agent's reader with a request intent head (``training.request_intent``)
+    trained on grammar requests and remarks, ``min_intent`` chosen on the development sets."""
+    from vla_gr.training.request_intent import train_request_intent
+
+    (checkpoint,) = _inputs(stage, inputs, 1)
+    r = cfg.training.request_intent
+    agent = folder / "agent"
+    train_request_intent(
+        checkpoint, agent, dev_sets=r.dev_sets, count=r.count, steps=r.steps,
+        batch_size=r.batch_size, lr=r.lr, seed=cfg.seed, compute=_compute(cfg),
+    )  # fmt: skip
+    return agent
+
+
 def graft_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
     """The input agent with model part ``part`` and its weights taken from the donor (the
     second input), with the stage's ``model_overrides`` (e.g. the part's threshold)."""
@@ -314,6 +341,7 @@ STAGES: dict[str, Callable[..., Path]] = {
     "room_type": room_type_stage,
     "object_category": object_category_stage,
     "instruction_reader": instruction_reader_stage,
+    "request_intent": request_intent_stage,
     "source": source_stage,
     "graft": graft_stage,
     "adapt": adapt_stage,

