@@ -1,7 +1,7 @@
 """A GPU recipe's stages under torchrun, on CPU: two gloo processes run every stage of
 ``config_rtx4060`` (collect, goal head, rollouts, DAgger, fine-tune, room and object checks,
-S1 data, S1, instruction reader, export) for two optimiser steps at tiny sizes, through the
-train app's own entry point. The collect and rollout stages run once, split across the ranks:
+S1 data, S1, instruction reader, its request intent head, export) for two optimiser steps at
+tiny sizes, through the train app's own entry point. The collect and rollout stages run once, split across the ranks:
 every episode exactly once, each rank a share of its own; the product is the dual-system agent."""
 
 from __future__ import annotations
@@ -53,6 +53,9 @@ def tiny(out: Path, dev_set: Path) -> list[str]:
         "training.instruction_reader.count=40", "training.instruction_reader.steps=2",
         "training.instruction_reader.batch_size=8",
         f"training.instruction_reader.dev_sets=[{dev_set}]",
+        "training.request_intent.count=40", "training.request_intent.steps=2",
+        "training.request_intent.batch_size=8",
+        f"training.request_intent.dev_sets=[{dev_set}]",
         "logging.progress=false", "logging.tensorboard=false",
     ]  # fmt: skip
 
@@ -129,5 +132,5 @@ def test_every_stage_ran_and_the_product_is_the_dual_system_agent(pipeline):
     agent = load_policy(pipeline / "agent" / "agent")
     assert type(agent) is VLAGRPolicy
     assert agent.room_type is not None and agent.object_category is not None
-    assert agent.instruction_reader is not None
+    assert agent.instruction_reader is not None and agent.instruction_reader.intent is not None
     assert agent.config.s1.kind == "pure_pursuit" and agent.config.goal_head.channels == [8] * 4
