@@ -152,3 +152,16 @@ def test_the_head_is_written_into_the_agent_with_the_rest_untouched(
     policy = VLAGRPolicy.from_pretrained(out)
     reading = policy.read("the red couch pls")  # the loaded agent reads with the head
     assert 0.0 <= reading.confidence["request"] <= 1.0
+
+
+def test_the_head_trains_from_scratch_whatever_the_agent_holds(
+    tiny_reader_agent, dev_set, tmp_path
+):
+    first = tmp_path / "first"
+    train_request_intent(tiny_reader_agent, first, [dev_set], count=40, steps=4)
+    again = tmp_path / "again"  # from an agent that has a trained head already
+    train_request_intent(first, again, [dev_set], count=40, steps=4)
+    a, b = read_checkpoint(first).model, read_checkpoint(again).model
+    assert a.keys() == b.keys()
+    for name in a:
+        assert torch.equal(a[name], b[name]), name  # the same head: not trained further

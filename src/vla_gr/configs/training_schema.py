@@ -101,7 +101,7 @@ class IntentStageConfig:
     WordNet's statements, ``min_intent`` chosen on development sets (``training.request_intent``,
     :mod:`vla_gr.training.request_intent`)."""
 
-    count: int = 12000  # grammar requests, and as many statements
+    count: int = 8000  # grammar requests, and as many statements
     steps: int = 1500  # optimiser steps
     batch_size: int = 256  # sentences per step
     lr: float = 3e-3  # learning rate
@@ -125,6 +125,11 @@ class IntentStageConfig:
                 "blind_not_understood_e",
                 "blind_not_understood_f",
                 "blind_not_understood_g",
+                "blind_g",
+                "blind_h",
+                "blind_i",
+                "blind_j",
+                "blind_not_understood_h",
             )
         ]  # fmt: skip
     )

@@ -47,11 +47,12 @@ def build_agent_from(
     keep_part: bool,
     forced: Sequence[str],
     part_config: Mapping | None = None,
+    reinit: Sequence[str] = (),
 ):
     """The agent of checkpoint ``init`` with ``model.<part>`` replaced by ``part_config`` (if
     given), changed by ``settings`` (each ``key=value`` with a key under ``<part>.``) and then
     ``forced``; every weight is loaded from ``init`` except, unless ``keep_part``, those of
-    ``part`` (fresh).
+    ``part``, and those under the prefixes ``reinit`` (fresh).
 
     Returns ``(policy, loaded checkpoint, its config with the merged model)``.
     """
@@ -79,7 +80,11 @@ def build_agent_from(
     policy = apply_peft(VLAGRPolicy(OmegaConf.to_object(merged)), merged.peft)
     prefix = f"{part}."
     fresh = {k: v for k, v in policy.state_dict().items() if k.startswith(prefix)}
-    tensors = {k: v for k, v in loaded.model.items() if not k.startswith(prefix) or keep_part}
+    tensors = {
+        k: v
+        for k, v in loaded.model.items()
+        if (not k.startswith(prefix) or keep_part) and not k.startswith(tuple(reinit))
+    }
     load_model_state(policy, {**fresh, **tensors}, str(init))
     config.model = merged
     return policy, loaded, config

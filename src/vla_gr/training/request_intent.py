@@ -152,8 +152,9 @@ def train_request_intent(
     dev_rows = load_request_rows(dev_sets)  # a missing file fails before any training
     torch.manual_seed(seed)
     policy, loaded, config = build_agent_from(
-        init, "instruction_reader", [], keep_part=True, forced=["instruction_reader.intent=true"]
-    )
+        init, "instruction_reader", [], keep_part=True, forced=["instruction_reader.intent=true"],
+        reinit=["instruction_reader.intent."],  # trained from scratch, whatever init holds
+    )  # fmt: skip
     reader = policy.instruction_reader
     policy.requires_grad_(False)
     c = reader.config
