@@ -1,8 +1,9 @@
 """A GPU recipe's stages under torchrun, on CPU: two gloo processes run every stage of
 ``config_rtx4060`` (collect, goal head, rollouts, DAgger, fine-tune, room and object checks,
 S1 data, S1, instruction reader, its request intent head, export) for two optimiser steps at
-tiny sizes, through the train app's own entry point. The collect and rollout stages run once, split across the ranks:
-every episode exactly once, each rank a share of its own; the product is the dual-system agent."""
+tiny sizes, through the train app's own entry point. The collect and rollout stages run once,
+split across the ranks: every episode exactly once, each rank a share of its own; the product is
+the dual-system agent."""
 
 from __future__ import annotations
 
