@@ -73,7 +73,11 @@ def test_rename_keys_keeps_every_setting_through_the_mapping(old_checkpoint, tmp
         target = RENAMED_KEYS.get(key, key)
         assert resolved[target] == value, f"{key} -> {target}"
         reached.add(target)
-    added = {f"instruction_reader.{k}" for k in ("goal_categories", "temperature", "colors")}
+    added = {
+        f"instruction_reader.{k}"
+        for k in ("goal_categories", "temperature", "colors", "intent", "intent_hidden",
+                  "min_intent")
+    }  # fmt: skip
     added |= {"perception.engine", "navigator.not_found.steps", "navigator.not_found.new_area"}
     assert reached | added == set(resolved)  # every other setting comes from an old one
     # the shipped checkpoint resolves to the same config but for its trained reader and the

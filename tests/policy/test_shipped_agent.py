@@ -38,7 +38,10 @@ def test_shipped_checkpoint_carries_every_model_key_and_its_weights_are_unchange
     assert model_key_gaps(saved) == ([], [])
     assert saved["instruction_reader"]["enabled"]
     reader = sorted(k for k in loaded.model if k.startswith("instruction_reader."))
-    assert reader and all(k.startswith("instruction_reader.tagger.") for k in reader)
+    parts = ("instruction_reader.tagger.", "instruction_reader.intent.")
+    assert reader and all(k.startswith(parts) for k in reader)
+    assert saved["instruction_reader"]["intent"]  # the request intent head, weights included
+    assert any(k.startswith("instruction_reader.intent.") for k in reader)
     # every other weight is the agent's before the reader was added, bit for bit (the file
     # model.safetensors of that agent had SHA-256 953290197333eec1...)
     digest = hashlib.sha256()
