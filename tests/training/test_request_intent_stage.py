@@ -12,11 +12,9 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from vla_gr import __version__
-from vla_gr.checkpoint import read_checkpoint, save_checkpoint
-from vla_gr.configs import load_config
+from vla_gr.checkpoint import read_checkpoint
 from vla_gr.errors import UserError
-from vla_gr.policy import VLAGRPolicy, make_policy
+from vla_gr.policy import VLAGRPolicy
 from vla_gr.training.instruction_reader import train_instruction_reader
 from vla_gr.training.remark_corpus import _with_house_object, intent_corpus, wordnet_statements
 from vla_gr.training.request_intent import train_request_intent
@@ -94,21 +92,14 @@ def test_the_intent_corpus_is_labelled_by_where_a_sentence_comes_from(grammar):
 
 
 @pytest.fixture(scope="module")
-def tiny_reader_agent(tmp_path_factory) -> Path:
-    """A tiny untrained dual-system agent with a briefly trained reader, as a checkpoint."""
-    tiny = ["model.agent=dual_system", "model.goal_head.text_encoder=hashed",
-            "model.encoders.text_encoder=hashed", "model.s1.channels=[8,8]"]  # fmt: skip
-    resolved, cfg = load_config("config_debug", tiny)
-    torch.manual_seed(0)
-    tensors = {k: v.contiguous() for k, v in make_policy(cfg.model).state_dict().items()}
-    state = {"step": 0, "vla_gr_version": __version__}
-    folder = tmp_path_factory.mktemp("tiny")
-    init = save_checkpoint(folder, 0, tensors, state, OmegaConf.to_yaml(resolved), links=())
+def tiny_reader_agent(tiny_agent, tmp_path_factory) -> Path:
+    """The tiny untrained agent with a briefly trained reader, as a checkpoint."""
+    folder = tmp_path_factory.mktemp("tiny_reader")
     dev = folder / "dev.jsonl"
     dev.write_text(json.dumps({"request": "the red couch", "fields": {
         "category": "sofa", "color": "red", "room": None, "near": None}}) + "\n")  # fmt: skip
     out = folder / "reader"
-    train_instruction_reader(init, out, [dev], count=120, steps=10)
+    train_instruction_reader(tiny_agent, out, [dev], count=120, steps=10)
     return out
 
 

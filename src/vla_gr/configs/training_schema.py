@@ -63,6 +63,25 @@ class FramePartStageConfig:
             )
 
 
+#: Hand-written development request sets (``benchmarks/language/<name>.jsonl``) the reader's
+#: temperature and threshold are chosen on.
+READER_DEV_SETS = (
+    "dev_requests", "dev_a", "dev_b", "dev_c", "dev_not_understood", "dev_not_understood_b",
+)  # fmt: skip
+#: Those and the blind sets measured since, which the intent head's ``min_intent`` is chosen on.
+INTENT_DEV_SETS = READER_DEV_SETS + (
+    "blind_d", "blind_e", "blind_f", "blind_not_understood", "blind_not_understood_c",
+    "blind_not_understood_d", "blind_not_understood_e", "blind_not_understood_f",
+    "blind_not_understood_g", "blind_g", "blind_h", "blind_i", "blind_j",
+    "blind_not_understood_h",
+)  # fmt: skip
+
+
+def _request_sets(names) -> list[str]:
+    """Paths (from the working directory) of the request sets ``names``."""
+    return [f"benchmarks/language/{name}.jsonl" for name in names]
+
+
 @dataclass
 class ReaderStageConfig:
     """The instruction reader trained by a recipe stage on generated requests and
@@ -73,19 +92,7 @@ class ReaderStageConfig:
     batch_size: int = 128  # requests per step
     lr: float = 3e-3  # learning rate
     # hand-written development requests (JSONL, paths from the working directory)
-    dev_sets: list[str] = field(
-        default_factory=lambda: [
-            f"benchmarks/language/{name}.jsonl"
-            for name in (
-                "dev_requests",
-                "dev_a",
-                "dev_b",
-                "dev_c",
-                "dev_not_understood",
-                "dev_not_understood_b",
-            )
-        ]  # fmt: skip
-    )
+    dev_sets: list[str] = field(default_factory=lambda: _request_sets(READER_DEV_SETS))
     settings: list[str] = field(default_factory=list)  # instruction_reader.* model settings
 
     def __post_init__(self) -> None:
@@ -106,33 +113,7 @@ class IntentStageConfig:
     batch_size: int = 256  # sentences per step
     lr: float = 3e-3  # learning rate
     # hand-written development requests: the reader's and the blind sets used since
-    dev_sets: list[str] = field(
-        default_factory=lambda: [
-            f"benchmarks/language/{name}.jsonl"
-            for name in (
-                "dev_requests",
-                "dev_a",
-                "dev_b",
-                "dev_c",
-                "dev_not_understood",
-                "dev_not_understood_b",
-                "blind_d",
-                "blind_e",
-                "blind_f",
-                "blind_not_understood",
-                "blind_not_understood_c",
-                "blind_not_understood_d",
-                "blind_not_understood_e",
-                "blind_not_understood_f",
-                "blind_not_understood_g",
-                "blind_g",
-                "blind_h",
-                "blind_i",
-                "blind_j",
-                "blind_not_understood_h",
-            )
-        ]  # fmt: skip
-    )
+    dev_sets: list[str] = field(default_factory=lambda: _request_sets(INTENT_DEV_SETS))
 
     def __post_init__(self) -> None:
         for key in ("count", "steps", "batch_size", "lr"):

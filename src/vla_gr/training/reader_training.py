@@ -30,6 +30,7 @@ log = logging.getLogger(__name__)
 
 __all__ = [
     "calibrate_reader",
+    "development_merit",
     "encode_corpus",
     "expected_calibration_error",
     "fit_tagger",
@@ -185,6 +186,17 @@ def reading_scores(readings, rows: list[dict]) -> dict:
     return out
 
 
+def development_merit(scores: dict) -> float:
+    """What a calibration maximises on development :func:`reading_scores`: asks read right and
+    acted on, an ask acted on wrongly or a refusal acted on counting -2."""
+    acted_refusals = scores.get("refusals", 0) * (1.0 - scores.get("refused", 1.0))
+    return (
+        scores.get("understood_and_right", 0.0) * scores.get("requests", 0)
+        - 2.0 * scores.get("acted_on_wrongly", 0)
+        - 2.0 * acted_refusals
+    )
+
+
 def calibrate_reader(reader: InstructionReader, rows: list[dict]) -> dict:
     """Set ``temperature`` (lowest field ECE on the asks) then ``min_confidence`` (most asks
     read right and acted on; an ask acted on wrongly, or a refusal acted on, counts -2) on
@@ -209,17 +221,8 @@ def calibrate_reader(reader: InstructionReader, rows: list[dict]) -> dict:
 
     best_t = min(TEMPERATURES, key=lambda t: scores(t, 0.0).get("ece", 0.0))
 
-    def merit(threshold: float) -> float:
-        s = scores(best_t, threshold)
-        acted_refusals = s.get("refusals", 0) * (1.0 - s.get("refused", 1.0))
-        return (
-            s.get("understood_and_right", 0.0) * s.get("requests", 0)
-            - 2.0 * s.get("acted_on_wrongly", 0)
-            - 2.0 * acted_refusals
-        )
-
     c.temperature = best_t
-    c.min_confidence = max(THRESHOLDS, key=lambda th: (merit(th), -th))
+    c.min_confidence = max(THRESHOLDS, key=lambda th: (development_merit(scores(best_t, th)), -th))
     reader._cache.clear()
     return {
         "temperature": c.temperature,

@@ -3,9 +3,10 @@ to go somewhere against sentences that ask for nothing.
 
 Requests come from the request grammar. Sentences that ask for nothing come from real
 English: WordNet's usage examples of its verbs ("the laughter died down", "Is your cat
-spayed?"), statements, questions and remarks written by people, not templates. Half of those
-that name something get a house object put in its place ("She retained the green couch in the
-kitchen"), so that naming a goal is not what makes a request: the sentence's frame is.
+spayed?"), statements, questions and remarks written by people, not templates. Four in five
+of those that name something get a house object put in its place ("She retained the green
+couch in the kitchen"), so that naming a goal is not what makes a request: the sentence's
+frame is.
 Examples that open with their own verb ("Cut the bread") are imperatives and left out.
 """
 
@@ -73,8 +74,9 @@ def remarks(grammar: RequestGrammar, count: int, seed: int) -> list[str]:
 def intent_corpus(grammar: RequestGrammar, count: int, seed: int) -> tuple[list[str], list[int]]:
     """(texts, labels) under ``seed``, shuffled. Asking to go somewhere (1): ``count`` grammar
     requests (but negations, which the tagger reads, and the grammar's chit-chat and gibberish,
-    0), a quarter as many bare descriptions ("the green couch in the kitchen") and as many
-    requests beside a statement ("The tissue ossified. find the red chair"). Asking for
+    0), a quarter as many bare descriptions ("the green couch in the kitchen") and the requests
+    among a fifth as many more, each beside a statement ("The tissue ossified. find the red
+    chair"). Asking for
     nothing (0): ``count`` remarks. Every sentence ends in a random punctuation mark or none."""
     rng = np.random.default_rng(seed + 3)
     texts, labels = [], []

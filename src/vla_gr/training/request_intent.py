@@ -100,7 +100,7 @@ def calibrate_intent(reader, rows: list[dict]) -> dict:
     ask acted on wrongly, or a refusal acted on, counts -2); returns the choice, the scores at
     it and without the head's refusals."""
     from vla_gr.agent.reading.text import normalise_request, request_words
-    from vla_gr.training.reader_training import reading_scores
+    from vla_gr.training.reader_training import development_merit, reading_scores
 
     c = reader.config
     texts = [normalise_request(row["request"]) for row in rows]
@@ -114,16 +114,8 @@ def calibrate_intent(reader, rows: list[dict]) -> dict:
             c.min_intent = saved
         return reading_scores(readings, rows)
 
-    def merit(s: dict) -> float:
-        acted_refusals = s.get("refusals", 0) * (1.0 - s.get("refused", 1.0))
-        return (
-            s.get("understood_and_right", 0.0) * s.get("requests", 0)
-            - 2.0 * s.get("acted_on_wrongly", 0)
-            - 2.0 * acted_refusals
-        )
-
     table = {th: scores(th) for th in (0.0, *INTENT_THRESHOLDS)}
-    c.min_intent = max(INTENT_THRESHOLDS, key=lambda th: (merit(table[th]), -th))
+    c.min_intent = max(INTENT_THRESHOLDS, key=lambda th: (development_merit(table[th]), -th))
     reader._cache.clear()
     return {"min_intent": c.min_intent, "dev": table[c.min_intent], "dev_without": table[0.0]}
 
@@ -132,7 +124,7 @@ def train_request_intent(
     init: str | Path,
     out: str | Path,
     dev_sets: Sequence[str | Path],
-    count: int = 12000,
+    count: int = 8000,
     steps: int = 1500,
     batch_size: int = 256,
     lr: float = 3e-3,
