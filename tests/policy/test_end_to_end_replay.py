@@ -1,7 +1,9 @@
 """The end-to-end policy replays, bit for bit, the actions a tiny checkpoint gave before the
 agent's redesign (``data/end_to_end_tiny``: ``vla-gr train --config-name config_debug``,
 exported; ``data/end_to_end_tiny_actions.npz``: 24 observations of `val` episode 0 at 32 px
-and the actions the policy chose for them under ``torch.manual_seed(0)``)."""
+and the actions the policy chose for them under ``torch.manual_seed(0)``). Bit for bit on a
+CPU with the recording's kernels; other CPUs (AVX-512 against AVX2 matmuls) differ in the
+last float bits, so the check allows 1e-5 and asks the STOP decisions to agree exactly."""
 
 from pathlib import Path
 
@@ -27,4 +29,6 @@ def test_end_to_end_reproduces_recorded_actions():
             "instruction": str(rec["instruction"]),
         }
         actions.append(np.asarray(policy.select_action(obs), dtype=np.float32).reshape(3))
-    np.testing.assert_array_equal(np.stack(actions), rec["actions"])  # (T, 3), bit for bit
+    actions = np.stack(actions)  # (T, 3)
+    np.testing.assert_allclose(actions, rec["actions"], rtol=0, atol=1e-5)
+    np.testing.assert_array_equal(actions[:, 2] > 0, rec["actions"][:, 2] > 0)  # STOP or not

@@ -79,6 +79,11 @@ def test_rename_keys_keeps_every_setting_through_the_mapping(old_checkpoint, tmp
                   "min_intent")
     }  # fmt: skip
     added |= {"perception.engine", "navigator.not_found.steps", "navigator.not_found.new_area"}
+    added |= {
+        f"navigator.room_search.{k}"
+        for k in ("enabled", "radius", "keep", "categories", "room_types", "presence",
+                  "room_share")
+    }  # fmt: skip
     assert reached | added == set(resolved)  # every other setting comes from an old one
     # the shipped checkpoint resolves to the same config but for its trained reader and the
     # engine of its perception (ONNX Runtime; the old one ran PyTorch, the default)

@@ -143,6 +143,7 @@ class GroundedDualSystem:
             p.room_match,
             p.category_match,
             p.anchor,
+            p.room_probs,
         )
         self.follower.set_plan(self.plan, pose)
         self.last_percept = p
@@ -162,6 +163,8 @@ class GroundedDualSystem:
                 read["read"] = time.perf_counter() - t0  # the episode's one reading
             if self.reading is not None and not self.reading.understood:
                 return self._declare("not_understood", read)
+            if self.steps == 0 and self.reading is not None:  # where to search for it first
+                self.navigator.set_search_goal(self.reading.category, self.reading.room)
         if self.declared_outcome == "not_found":  # declared: asked again, it stays declared
             return self._declare("not_found", read)
         timings = (self.plan_if_due(obs) or {}) | read

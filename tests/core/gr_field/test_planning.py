@@ -383,3 +383,31 @@ def test_a_clearance_margin_closes_the_gap_the_sub_cells_opened():
     _wall_with_gap(fields[1], 60, 71)
     assert not fields[0]._no_fit(0, occ, whole)[:, 30].all()
     assert fields[1]._no_fit(0, occ, whole)[:, 30].all()  # 0.05 m more than that: closed
+
+
+def test_frontier_value_sends_the_robot_to_the_frontier_worth_searching():
+    """A seen corridor with a frontier at each end, the robot 1 m from the west end and 3 m
+    from the east end: it heads west by default and east once the west end is worth little."""
+    field = GRField(map_size=96, cell_size=0.1)
+    pose = torch.zeros(1, 3)
+    (row, col), h = field.grid.world_to_cell(np.zeros(2)), field.grid.cell_size
+    west, east = col - round(1.0 / h), col + round(3.0 / h)
+    nothing = {"depth": torch.full((1, N, N, 1), float("nan")), "pose": pose}
+    field.update(nothing)
+    field.map_state[0, FREE_HITS, row - 4 : row + 5, west : east + 1] = 1.0  # the corridor
+    field.map_state[0, OCC_HITS, row - 5, west : east + 1] = 1.0  # its walls
+    field.map_state[0, OCC_HITS, row + 5, west : east + 1] = 1.0
+
+    def heading(value=None, keep=0.5) -> float:
+        out = field.update(nothing, frontier_value=value, frontier_keep=keep)
+        assert out.has_path.all() and not out.goal_seen.any()
+        return float(out.waypoints[0, -1, 0])  # forward (+x, east) of the last waypoint
+
+    assert heading() < 0  # the nearer frontier
+    value = torch.ones(1, *field.grid.shape)
+    value[0, :, :col] = 0.2  # the west half of the map is worth a fifth of the east
+    assert heading(value) > 0
+    assert heading(value, keep=0.1) < 0  # 0.2 >= 0.1 x the best: both ends are kept
+    assert heading(torch.ones(1, *field.grid.shape)) < 0  # alike everywhere: as without
+    with pytest.raises(ValueError, match="frontier_value"):
+        field.update(nothing, frontier_value=torch.ones(1, 5, 5))

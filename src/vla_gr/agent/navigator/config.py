@@ -13,7 +13,8 @@ Sections (``model.navigator.<section>.<key>``): ``look_around`` (the turn at the
 relation), ``approach`` (stop, verify, give a goal up), ``recovery`` (blocked, stuck, no path),
 ``traps`` (the same spot again and again), ``tight`` (planning for a thinner robot),
 ``local_planner`` (fine cells while planning thin), ``map_edits`` (the navigator's own marks
-on the map), ``not_found`` (the reachable house searched: declare the object not found).
+on the map), ``not_found`` (the reachable house searched: declare the object not found),
+``room_search`` (frontiers in rooms likely to hold the goal first).
 ``turn_rate`` is the navigator's own: every open-loop turn uses it.
 """
 
@@ -33,6 +34,7 @@ __all__ = [
     "NavigatorConfig",
     "NotFoundConfig",
     "RecoveryConfig",
+    "RoomSearchConfig",
     "TightConfig",
     "TrapsConfig",
 ]
@@ -284,6 +286,46 @@ class NotFoundConfig:
 
 
 @dataclass
+class RoomSearchConfig:
+    """Explore where the goal is likely first (``model.navigator.room_search``,
+    :mod:`vla_gr.agent.navigator.room_search`): the map remembers which type of room each
+    place the robot passed is (the room-type classifier, every tick), and a frontier in a
+    room unlikely to hold the goal is searched after the others. How likely a room type is
+    to hold a category is learned from the training houses
+    (:mod:`vla_gr.training.room_prior`), never written by hand."""
+
+    enabled: bool = False
+    # cells within this distance of the robot, through free seen space, take the type of the
+    # room it stands in this tick
+    radius: float = 1.5  # m
+    # frontier cells valued below keep x the best frontier's value are searched only when no
+    # better one can be reached
+    keep: float = 0.5
+    # the learned tables: per category (a row), P(a room of each type holds one) (a column
+    # per room type); the share of each room type among the training houses' rooms
+    categories: list[str] = field(default_factory=list)
+    room_types: list[str] = field(default_factory=list)
+    presence: list[list[float]] = field(default_factory=list)
+    room_share: list[float] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        _check(self, "room_search", {"> 0": ("radius",), "[0, 1]": ("keep",)})
+        rooms = len(self.room_types)
+        rows = len(self.presence) == len(self.categories)
+        if not rows or len(self.room_share) != rooms or any(len(v) != rooms for v in self.presence):
+            raise ValueError(
+                f"{_KEY}.room_search: presence needs a row per category "
+                f"({len(self.categories)}), room_share and every row a value per room type "
+                f"({rooms}: {list(self.room_types)})"
+            )
+        if self.enabled and not self.presence:
+            raise ValueError(
+                f"{_KEY}.room_search.enabled needs the learned presence table: "
+                "python -m vla_gr.training.room_prior CHECKPOINT OUT"
+            )
+
+
+@dataclass
 class NavigatorConfig:
     """S2's behaviour (metres, radians, control steps), one section per concern; the field
     has its own config."""
@@ -299,6 +341,7 @@ class NavigatorConfig:
     local_planner: LocalPlannerConfig = field(default_factory=LocalPlannerConfig)
     map_edits: MapEditsConfig = field(default_factory=MapEditsConfig)
     not_found: NotFoundConfig = field(default_factory=NotFoundConfig)
+    room_search: RoomSearchConfig = field(default_factory=RoomSearchConfig)
 
     def __post_init__(self) -> None:
         if not 0.0 < self.turn_rate <= 1.0:

@@ -81,6 +81,7 @@ from vla_gr.agent.navigator.config import NavigatorConfig
 from vla_gr.agent.navigator.goal_checks import GoalChecks
 from vla_gr.agent.navigator.local_planner import LocalPlanner
 from vla_gr.agent.navigator.map_edits import MapEdits
+from vla_gr.agent.navigator.room_search import RoomSearch
 from vla_gr.agent.navigator.search import SearchCount
 from vla_gr.core.gr_field.config import GRFieldConfig
 from vla_gr.core.gr_field.mapping import points_to_cells
@@ -201,11 +202,22 @@ class Navigator:
         self.search = SearchCount(
             self.config.not_found, self.steps_to_ticks(self.config.not_found.steps)
         )  # is the reachable house searched?
+        self.room_search = (
+            RoomSearch(self.config.room_search, shape, self.field.cell_size)
+            if self.config.room_search.enabled
+            else None
+        )  # which rooms the robot passed; set_search_goal() says what it looks for
         if self.local is not None:
             self.local.reset()
         self._tick_frame, self._projected = None, None  # this tick's depth, pose; their cells
         self.last_output = None
         self.last_latency = 0.0
+
+    def set_search_goal(self, category: str | None, room: str | None) -> None:
+        """This episode's goal category and room as read (class names; None: not named), for
+        ``room_search``: frontiers in rooms likely to hold it are searched first."""
+        if self.room_search is not None:
+            self.room_search.set_goal(category, room)
 
     # ------------------------------------------------------------------ tick
 
@@ -217,6 +229,7 @@ class Navigator:
         room_match: float = 1.0,
         object_match: float | None = None,
         anchor_likelihood=None,
+        room_probs=None,
     ) -> NavPlan:
         """One planner tick.
 
@@ -237,6 +250,8 @@ class Navigator:
             anchor_likelihood: (H, W) per-pixel probability of the category a relation
                 instruction names as its anchor; None when it names none. See
                 ``goal_checks.relation_distance``.
+            room_probs: (R,) probabilities of the type of room the robot stands in (the
+                room-type classifier's), for ``room_search``; None: no evidence this tick.
         """
         t0 = time.perf_counter()
         cfg = self.config
@@ -264,9 +279,18 @@ class Navigator:
             self.local.observe(*self._project()[2:])
         self.map_edits.mark_visited(pose[0, :2].numpy())
         self.map_edits.forget_noise()
-        out = self.field.update({"depth": depth, "pose": pose}, like, goal_gate=gate)
+        value = None if self.room_search is None else self.room_search.value()  # (H, W)
+        out = self.field.update(
+            {"depth": depth, "pose": pose}, like, goal_gate=gate,
+            frontier_value=None if value is None else torch.from_numpy(value)[None],
+            frontier_keep=cfg.room_search.keep,
+        )  # fmt: skip
         self.last_output = out
         maps = self.field.maps
+        if self.room_search is not None and room_probs is not None:  # typed for the next tick
+            row, col = self.field.grid.world_to_cell(pose[0, :2].numpy())  # the robot's cell
+            free = (maps.explored[0] & ~maps.occupied[0]).numpy()  # (H, W)
+            self.room_search.observe(np.asarray(room_probs), (int(row), int(col)), free)
         goal_cells = maps.goal[0].numpy()  # (H, W) confirmed goal cells
         self.committed = bool(goal_cells.any())
         robot_xy = maps.robot_xy[0].numpy()  # (2,) from the grid corner

@@ -47,7 +47,8 @@ class Percept:
     that the robot stands in the room the instruction names (1 when it names none or nothing
     checks it); ``category_match``: probability that the likely goal pixels show the
     instructed category (None: no evidence); ``anchor`` (H, W) or None: per-pixel probability
-    of a relation's anchor category.
+    of a relation's anchor category; ``room_probs`` (R,) or None: probabilities of the type of
+    room the robot stands in (asked for by the navigator's ``room_search``).
     """
 
     likelihood: np.ndarray
@@ -55,6 +56,7 @@ class Percept:
     room_match: float = 1.0
     category_match: float | None = None
     anchor: np.ndarray | None = None
+    room_probs: np.ndarray | None = None
 
 
 class Perception(Protocol):
@@ -217,12 +219,15 @@ class LearnedPerception:
                 f"goal likelihood has shape {likelihood.shape}, expected {depth_shape}"
             )
 
-        room_match = 1.0
-        if self.room_type is not None and episode.room is not None:
+        room_match, room_probs = 1.0, None
+        wanted = episode.room is not None or self.config.navigator.room_search.enabled
+        if self.room_type is not None and wanted:
             probs = self.room_type.probabilities(
                 frame["rgb"], frame["depth"], networks.get("room_type")
             )  # (1, R)
-            room_match = float(probs[0, episode.room])
+            room_probs = probs[0].float().cpu().numpy()  # (R,)
+            if episode.room is not None:
+                room_match = float(room_probs[episode.room])
 
         match, anchor = None, None
         if with_segmenter:
@@ -234,7 +239,7 @@ class LearnedPerception:
                 match = category_match(segment(), goal, index, oc.min_goal_pixels)
             if episode.anchor is not None:
                 anchor = segment()[episode.anchor]  # (H, W)
-        return Percept(likelihood, float(visible[0]), room_match, match, anchor)
+        return Percept(likelihood, float(visible[0]), room_match, match, anchor, room_probs)
 
 
 class TrueMaskPerception:

@@ -221,7 +221,10 @@ class GRField(nn.Module):
             goal = goal.reshape(depth.shape[0], -1)  # (B, H*W)
         return depth, pose, goal
 
-    def update(self, obs: dict, goal_likelihood=None, goal_gate=None) -> GRFieldOutput:
+    def update(
+        self, obs: dict, goal_likelihood=None, goal_gate=None, frontier_value=None,
+        frontier_keep: float = 0.5,
+    ) -> GRFieldOutput:  # fmt: skip
         """Integrate one observation per batch element and recompute the field.
 
         Args:
@@ -231,6 +234,10 @@ class GRField(nn.Module):
             goal_gate: (B, H, W) bool map cells that may count as goal (e.g. cells confirmed
                 over several ticks), or None (every cell may). Evidence is still accumulated
                 everywhere; the gate only decides which cells attract and are planned to.
+            frontier_value: (B, H, W) how much each cell is worth searching, or None (all
+                alike). With no goal, the path leads to the frontier cells worth at least
+                ``frontier_keep`` times the best frontier cell first, and to any frontier
+                cell only when none of those can be reached.
         """
         cfg = self.config
         depth, pose, goal = self._inputs(obs, goal_likelihood)
@@ -268,9 +275,18 @@ class GRField(nn.Module):
                     f"goal_gate must be (B, H, W)={(B, *self.grid.shape)}, "
                     f"got {tuple(goal_gate.shape)}"
                 )
-        return self._compute(pose, goal_gate)
+        if frontier_value is not None:
+            frontier_value = torch.as_tensor(frontier_value, device=self.map_state.device)
+            if frontier_value.shape != (B, *self.grid.shape):
+                raise ValueError(
+                    f"frontier_value must be (B, H, W)={(B, *self.grid.shape)}, "
+                    f"got {tuple(frontier_value.shape)}"
+                )
+        return self._compute(pose, goal_gate, frontier_value, frontier_keep)
 
-    def _compute(self, pose: torch.Tensor, goal_gate=None) -> GRFieldOutput:
+    def _compute(
+        self, pose: torch.Tensor, goal_gate=None, frontier_value=None, frontier_keep=0.5
+    ) -> GRFieldOutput:
         """Masses -> potential -> metric -> geodesics -> outputs, from the current map."""
         cfg, h = self.config, self.config.cell_size
         tick = self._stopwatch()
@@ -312,9 +328,12 @@ class GRField(nn.Module):
         goal_src = goal_src & goal_seen[:, None, None]  # (B, H, W)
         tick("metric")
         # the goal if seen and reachable, else the frontier (explore until a way opens)
-        travel, grads, choice = self._travel(
-            cost, occupied, explored, [goal_src, frontier], robot_xy
-        )
+        sources = [goal_src, frontier]
+        if frontier_value is not None:  # the frontier worth searching first
+            worth = torch.where(frontier, frontier_value, -torch.inf)  # (B, H, W)
+            best = worth.flatten(1).max(dim=1).values[:, None, None]  # (B, 1, 1)
+            sources.insert(1, frontier & (worth >= frontier_keep * best))  # (B, H, W)
+        travel, grads, choice = self._travel(cost, occupied, explored, sources, robot_xy)
         tick("fast_marching")  # travel (B, H, W), grads (B, 2, H, W), choice (B,)
         waypoints, has_path, distance = self._waypoints(travel, grads, robot_xy, pose)
         tick("path")
