@@ -91,6 +91,32 @@ def test_the_intent_corpus_is_labelled_by_where_a_sentence_comes_from(grammar):
     assert intent_corpus(grammar, 200, seed=3) == (texts, labels)  # deterministic
 
 
+def test_requests_told_the_other_way_round_ask_for_nothing(grammar):
+    from vla_gr.agent.reading.text import normalise_request, request_words
+    from vla_gr.agent.reading.vocabulary import word_table
+
+    rng = np.random.default_rng(5)
+    commands = [grammar.negated_command(rng) for _ in range(300)]
+    assert len(set(commands)) > 250  # varied, not a handful of phrases
+    negators = ("n't", "dont", "not", "never", "no need", "away", "avoid", "clear of", "forget",
+                "never mind", "skip", "ignore", "keep off", "leave alone", "out of the way",
+                "let's not", "told you not", "rather you didn't", "stop trying")  # fmt: skip
+    for command in commands:
+        assert any(n in command for n in negators), command  # every one says not to go
+        words = request_words(normalise_request(command))
+        assert word_table().name_in(words, "category") is not None, command  # names an object
+    texts, labels = intent_corpus(grammar, 400, seed=3)
+    told_not_to = [
+        label for text, label in zip(texts, labels)
+        if text.rstrip(" .!?").startswith(("don't ", "do not ", "stay away from "))
+    ]  # fmt: skip
+    assert len(told_not_to) >= 10 and set(told_not_to) == {0}
+    opened = {  # the reader reads words, without their punctuation
+        label for text, label in zip(texts, labels) if text.split(" ")[0].strip(",") == "robot"
+    }
+    assert opened == {0, 1}  # an opener says nothing of the kind
+
+
 @pytest.fixture(scope="module")
 def tiny_reader_agent(tiny_agent, tmp_path_factory) -> Path:
     """The tiny untrained agent with a briefly trained reader, as a checkpoint."""

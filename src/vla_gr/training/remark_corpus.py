@@ -8,6 +8,7 @@ of those that name something get a house object put in its place ("She retained 
 couch in the kitchen"), so that naming a goal is not what makes a request: the sentence's
 frame is.
 Examples that open with their own verb ("Cut the bread") are imperatives and left out.
+Requests told the other way round ("don't go to the red chair") ask to go nowhere either.
 """
 
 from __future__ import annotations
@@ -77,7 +78,10 @@ def intent_corpus(grammar: RequestGrammar, count: int, seed: int) -> tuple[list[
     0), a quarter as many bare descriptions ("the green couch in the kitchen") and the requests
     among a fifth as many more, each beside a statement ("The tissue ossified. find the red
     chair"). Asking for
-    nothing (0): ``count`` remarks. Every sentence ends in a random punctuation mark or none."""
+    nothing (0): ``count`` remarks (three in ten after an opener: "hey robot, ...") and a
+    quarter as many requests told the other way round ("don't go to the red chair", "stay away
+    from the sofa"; three in ten with a reason after them). Every sentence ends in a random
+    punctuation mark or none."""
     rng = np.random.default_rng(seed + 3)
     texts, labels = [], []
     for request in grammar.batch(count, seed):
@@ -92,7 +96,13 @@ def intent_corpus(grammar: RequestGrammar, count: int, seed: int) -> tuple[list[
         first, second = (statement, request) if rng.random() < 0.6 else (request, statement)
         texts.append(first + link + second)
     labels += [1] * (len(texts) - len(labels))
-    texts += remarks(grammar, count, seed + 1)
+    for remark in remarks(grammar, count, seed + 1):
+        texts.append(f"{grammar.opener(rng)} {remark}" if rng.random() < 0.3 else remark)
+    for command, reason in zip(
+        (grammar.negated_command(rng) for _ in range(count // 4)),
+        remarks(grammar, count // 4, seed + 6),
+    ):
+        texts.append(command + (", " + reason if rng.random() < 0.3 else ""))
     labels += [0] * (len(texts) - len(labels))
     texts = [_ending(text, rng) for text in texts]
     order = np.random.default_rng(seed + 2).permutation(len(texts))

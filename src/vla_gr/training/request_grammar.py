@@ -149,6 +149,21 @@ _SECOND = (
     "and afterwards",
 )  # fmt: skip
 _GIBBERISH_LETTERS = "abcdefghijklmnopqrstuvwxyz"
+#: How a request is turned into its opposite before its verb: "don't go to ...".
+_DO_NOT = (
+    "don't", "do not", "dont", "never", "please don't", "please do not", "no need to",
+    "you don't need to", "you don't have to", "there's no need to", "i don't want you to",
+    "i don't need you to", "you shouldn't", "you should not", "don't bother to",
+    "do not ever", "no, don't", "we don't need to", "stop trying to", "try not to",
+    "i told you not to", "you mustn't", "let's not", "i'd rather you didn't",
+)  # fmt: skip
+#: Verbs that say to keep away from, or to leave out, what follows them.
+_KEEP_AWAY = (
+    "stay away from", "keep away from", "keep clear of", "steer clear of", "avoid",
+    "don't bother with", "forget about", "never mind", "skip", "ignore", "keep off",
+    "don't touch", "don't go near", "do not go near", "don't come near", "don't bump into",
+    "don't knock over", "stay out of the way of", "leave alone", "don't block",
+)  # fmt: skip
 #: How often a class is said by its name (-1) or by a word 0, 1, 2, 3+ levels below its senses.
 _DEPTH_SHARE = {-1: 0.45, 0: 0.25, 1: 0.18, 2: 0.08, 3: 0.04}
 
@@ -397,6 +412,35 @@ class RequestGrammar:
             anchor = self._noun(rng, self._pick(rng, [c for c in self.categories if c != goal]))
         segments = self._goal_phrase(rng, self._noun(rng, goal), colour, room, anchor)
         return " ".join(text for text, _ in segments if text)
+
+    def negated_command(self, rng: np.random.Generator) -> str:
+        """A request told the other way round, which asks to go nowhere: "don't go to the red
+        chair", "please stay away from the couch in the kitchen", "no need to find the bed"."""
+        goal = self.goal_description(rng)
+        if rng.random() < 0.55:
+            text = f"{self._pick(rng, _DO_NOT)} {self._pick(rng, _VERBS)} {goal}"
+        else:
+            text = f"{self._pick(rng, _KEEP_AWAY)} {goal}"
+        if rng.random() < 0.3:
+            text = f"{self.opener(rng)} {text}"
+        return text
+
+    def opener(self, rng: np.random.Generator) -> str:
+        """Words that open a message without asking anything: "hey robot,", "good morning."."""
+        openers = [p for p in _POLITE_BEFORE if "you" not in p and p not in ("please", "pls")]
+        return self._pick(
+            rng,
+            openers
+            + [
+                "good morning.",
+                "hello robot.",
+                "fyi",
+                "btw",
+                "just so you know,",
+                "heads up:",
+                "oh and",
+            ],
+        )
 
     # -- one request ------------------------------------------------------------------------
     def sample(self, rng: np.random.Generator) -> LabelledRequest:
