@@ -35,6 +35,10 @@ STAGE_KINDS: dict[str, tuple[str, tuple[str, ...]]] = {
         "the agent's reader + a request intent head (training.request_intent)",
         ("checkpoint",),
     ),
+    "room_prior": (
+        "the agent with room search on, its prior counted from houses (training.room_prior)",
+        ("checkpoint",),
+    ),
     "source": ("an existing checkpoint or store (path)", ()),
     "graft": ("the agent with another agent's part (part)", ("checkpoint", "donor")),
     "adapt": (

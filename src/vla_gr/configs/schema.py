@@ -15,6 +15,7 @@ from omegaconf import OmegaConf
 from vla_gr.configs.model_schema import FOLLOWS, ModelConfig
 from vla_gr.configs.pipeline_schema import PipelineConfig
 from vla_gr.configs.training_schema import (
+    SPLITS,
     LoggingConfig,
     TrainingConfig,
     check_training_for_agent,
@@ -22,7 +23,6 @@ from vla_gr.configs.training_schema import (
 from vla_gr.geometry.robot_spec import MAX_DEPTH
 from vla_gr.validation import check_choice, check_positive
 
-SPLITS = ("train", "val", "test")
 #: The agent shipped in the repository (paths are from the working directory): what ``vla-gr
 #: demo`` and ``vla-gr eval`` run when no agent is named.
 SHIPPED_CHECKPOINT = "checkpoints/vla_gr_cpu"

@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 
 from vla_gr.validation import check_choice, check_positive
 
+SPLITS = ("train", "val", "test")  # the world's splits (disjoint houses)
+
 AMP_MODES = ("none", "fp16", "bf16")
 DEVICES = ("auto", "cpu", "cuda")
 IF_MISSING = ("error", "collect", "synthetic")
@@ -73,7 +75,7 @@ INTENT_DEV_SETS = READER_DEV_SETS + (
     "blind_d", "blind_e", "blind_f", "blind_not_understood", "blind_not_understood_c",
     "blind_not_understood_d", "blind_not_understood_e", "blind_not_understood_f",
     "blind_not_understood_g", "blind_g", "blind_h", "blind_i", "blind_j",
-    "blind_not_understood_h",
+    "blind_not_understood_h", "blind_k", "blind_not_understood_i",
 )  # fmt: skip
 
 
@@ -120,6 +122,19 @@ class IntentStageConfig:
             check_positive(f"training.request_intent.{key}", getattr(self, key))
         if not self.dev_sets:
             raise ValueError("training.request_intent.dev_sets must name at least one file")
+
+
+@dataclass
+class RoomPriorStageConfig:
+    """Where categories stand in houses, counted by a ``room_prior`` stage for the navigator's
+    room search (``training.room_prior``, :mod:`vla_gr.training.room_prior`)."""
+
+    houses: int = 1200  # houses counted, their number of rooms cycling 1..6
+    split: str = "train"  # whose houses
+
+    def __post_init__(self) -> None:
+        check_positive("training.room_prior.houses", self.houses)
+        check_choice("training.room_prior.split", self.split, SPLITS)
 
 
 #: How an ``adapt`` stage fine-tunes the goal head: LoRA / OFT layers (merged before writing)
@@ -238,6 +253,8 @@ class TrainingConfig:
     instruction_reader: ReaderStageConfig = field(default_factory=ReaderStageConfig)
     # the reader's request intent head (a request_intent stage)
     request_intent: IntentStageConfig = field(default_factory=IntentStageConfig)
+    # where categories stand in houses (a room_prior stage), for the navigator's room search
+    room_prior: RoomPriorStageConfig = field(default_factory=RoomPriorStageConfig)
     # the goal head adapted to a shifted world (an adapt stage): LoRA, OFT or full
     adapt: AdaptStageConfig = field(default_factory=AdaptStageConfig)
 

@@ -24,6 +24,8 @@ instruct- ``agent/``: + an instruction reader           checkpoint
 ion_reader
 request_  ``agent/``: + the reader's request intent      checkpoint
 intent    head
+room_     ``agent/``: room search on, its prior counted   checkpoint
+prior     from houses
 graft     ``agent/``: + another agent's ``part``          checkpoint, donor
 adapt     ``agent/``: its goal head adapted on the       checkpoint, store
           store's frames (LoRA / OFT merged, or full)
@@ -288,6 +290,19 @@ def request_intent_stage(stage, cfg, resolved, folder: Path, inputs, services) -
     return agent
 
 
+def room_prior_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
+    """The input agent with the navigator's room search on: where categories stand counted
+    from ``training.room_prior.houses`` houses of its split, and the stage's
+    ``model_overrides`` (e.g. ``navigator.room_search.keep``)."""
+    from vla_gr.policy.export import export_pretrained
+    from vla_gr.training.room_prior import fit_room_prior, room_search_overrides
+
+    (checkpoint,) = _inputs(stage, inputs, 1)
+    r = cfg.training.room_prior
+    overrides = room_search_overrides(fit_room_prior(r.houses, r.split))
+    return export_pretrained(checkpoint, folder / "agent", overrides + list(stage.model_overrides))
+
+
 def graft_stage(stage, cfg, resolved, folder: Path, inputs, services) -> Path:
     """The input agent with model part ``part`` and its weights taken from the donor (the
     second input), with the stage's ``model_overrides`` (e.g. the part's threshold)."""
@@ -342,6 +357,7 @@ STAGES: dict[str, Callable[..., Path]] = {
     "object_category": object_category_stage,
     "instruction_reader": instruction_reader_stage,
     "request_intent": request_intent_stage,
+    "room_prior": room_prior_stage,
     "source": source_stage,
     "graft": graft_stage,
     "adapt": adapt_stage,

@@ -1,57 +1,16 @@
-"""Room search: the room prior is counted from houses (and changes with them), room evidence
-spreads through free space only, and a cell's value is the prior under its room posterior."""
+"""Room search: room evidence spreads through free space only, a cell's value is the room
+prior under its room posterior, and the section is checked."""
 
 from __future__ import annotations
-
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from vla_gr.agent.navigator.config import NavigatorConfig, RoomSearchConfig
 from vla_gr.agent.navigator.room_search import RoomSearch
-from vla_gr.training.room_prior import fit_room_prior, room_search_overrides
+from vla_gr.training.room_prior import room_search_overrides
 
 ROOMS = ["kitchen", "bathroom"]
-
-
-def _house(*rooms):
-    """A house of (room type, categories in it) pairs."""
-    return SimpleNamespace(
-        rooms=[SimpleNamespace(index=k, room_type=t) for k, (t, _) in enumerate(rooms)],
-        objects=[
-            SimpleNamespace(category=c, room_index=k)
-            for k, (_, held) in enumerate(rooms)
-            for c in held
-        ],
-    )
-
-
-def test_the_prior_is_counted_from_the_houses_with_a_beta_1_1_prior():
-    houses = [
-        _house(("kitchen", ["chair", "chair"]), ("bathroom", ["toilet"])),
-        _house(("kitchen", []), ("bathroom", ["toilet", "plant"])),
-        _house(("kitchen", ["chair", "plant"])),
-    ]
-    made = iter(houses)
-    prior = fit_room_prior(3, categories=["chair", "toilet", "plant"], room_types=ROOMS,
-                           generate=lambda seed, rooms: next(made))  # fmt: skip
-    # kitchens: 3, two with a chair; bathrooms: 2, both with a toilet, one with a plant
-    assert prior["categories"] == ["chair", "toilet", "plant"]
-    assert prior["presence"] == [
-        [round(3 / 5, 4), round(1 / 4, 4)],  # chair
-        [round(1 / 5, 4), round(3 / 4, 4)],  # toilet
-        [round(2 / 5, 4), round(2 / 4, 4)],  # plant
-    ]
-    assert prior["room_share"] == [0.6, 0.4] and prior["rooms"] == 5
-
-
-def test_the_world_s_prior_changes_with_its_houses():
-    train = fit_room_prior(60)
-    other = fit_room_prior(60, split="val")
-    assert train["presence"] != other["presence"]  # counted, not a table
-    toilet = dict(zip(train["room_types"], train["presence"][train["categories"].index("toilet")]))
-    assert max(toilet, key=toilet.get) == "bathroom"  # what the generator does, learned
 
 
 def _search(**settings) -> RoomSearch:
