@@ -25,7 +25,7 @@ import argparse
 import json
 from pathlib import Path
 
-from vla_gr.envs.episodes import EpisodeSpec, NoEpisodeError, sample_episode, save_episodes
+from vla_gr.envs.episodes import EpisodeSpec, sample_episodes_rooms_cycling, save_episodes
 from vla_gr.envs.instructions import parse_instruction
 
 FIELDS = ("category", "color", "room", "near")
@@ -34,19 +34,10 @@ MAX_ROOMS = 6
 
 def draw_pool(first: int, count: int, split: str = "test") -> list[dict]:
     """``count`` episodes from index ``first`` on, rooms cycling 1..6; unhostable skipped."""
-    out: list[dict] = []
-    index = first
-    while len(out) < count:
-        rooms = 1 + len(out) % MAX_ROOMS
-        try:
-            spec = sample_episode(split, index, num_rooms=rooms)
-        except NoEpisodeError:
-            index += 1
-            continue
-        fields = parse_instruction(spec.instruction)
-        out.append({"spec": spec.to_dict(), "fields": fields, "request": ""})
-        index += 1
-    return out
+    return [
+        {"spec": spec.to_dict(), "fields": parse_instruction(spec.instruction), "request": ""}
+        for spec in sample_episodes_rooms_cycling(split, first, count, MAX_ROOMS)
+    ]
 
 
 def load_set(path: str | Path) -> list[dict]:

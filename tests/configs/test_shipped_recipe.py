@@ -11,6 +11,7 @@ from omegaconf import OmegaConf
 from vla_gr.checkpoint import read_checkpoint
 from vla_gr.configs import load_config
 from vla_gr.training.pipeline import stage_config
+from vla_gr.training.room_prior import fit_room_prior, room_search_overrides
 
 SHIPPED = Path(__file__).resolve().parents[2] / "checkpoints" / "vla_gr_cpu"
 
@@ -49,6 +50,10 @@ def test_the_shipped_recipe_ends_in_the_shipped_checkpoints_model_settings():
                         *stage_cfg.training.instruction_reader.settings]  # fmt: skip
         elif stage.kind == "request_intent":
             written.append("instruction_reader.intent=true")
+        elif stage.kind == "room_prior":  # the prior counted again from the same houses
+            r = stage_cfg.training.room_prior
+            written += [*room_search_overrides(fit_room_prior(r.houses, r.split)),
+                        *stage.model_overrides]  # fmt: skip
     model = OmegaConf.merge(
         OmegaConf.to_container(resolved.model, resolve=True), OmegaConf.from_dotlist(written)
     )
@@ -68,4 +73,4 @@ def test_the_shipped_recipe_ends_in_the_shipped_checkpoints_model_settings():
     rebuilt.pop("instruction_reader.min_intent")
     assert {k: (rebuilt.get(k), want.get(k)) for k in rebuilt.keys() | want.keys()
             if rebuilt.get(k) != want.get(k)} == {}  # fmt: skip
-    assert [s.name for s in cfg.pipeline.stages][-1] == "shipped" and len(cfg.pipeline.stages) == 34
+    assert [s.name for s in cfg.pipeline.stages][-1] == "shipped" and len(cfg.pipeline.stages) == 35

@@ -273,3 +273,18 @@ def test_a_file_line_whose_instruction_does_not_describe_its_goal_is_refused(tmp
         declared = dataclasses.replace(spec, instruction=instruction, description=fields)
         save_episodes(path, [spec, declared])
         assert load_episodes(path) == [spec, declared]
+
+
+def test_episodes_in_houses_of_one_to_six_rooms_cycle_through_them():
+    from vla_gr.envs.episodes import sample_episode, sample_episodes_rooms_cycling
+
+    specs = sample_episodes_rooms_cycling("val", 4000, 7)
+    assert [s.num_rooms for s in specs] == [1, 2, 3, 4, 5, 6, 1]
+    for spec in specs[:2]:  # each one is the split's episode of its index in such a house
+        index = int(spec.episode_id.split("-")[1])
+        assert sample_episode("val", index, num_rooms=spec.num_rooms) == spec
+    assert [s.episode_id for s in sample_episodes_rooms_cycling("val", 4000, 7)] == [
+        s.episode_id for s in specs
+    ]
+    with pytest.raises(ValueError, match="max_rooms"):
+        sample_episodes_rooms_cycling("val", 0, 3, max_rooms=7)

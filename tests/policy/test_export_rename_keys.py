@@ -85,12 +85,14 @@ def test_rename_keys_keeps_every_setting_through_the_mapping(old_checkpoint, tmp
                   "room_share")
     }  # fmt: skip
     assert reached | added == set(resolved)  # every other setting comes from an old one
-    # the shipped checkpoint resolves to the same config but for its trained reader and the
-    # engine of its perception (ONNX Runtime; the old one ran PyTorch, the default)
+    # the shipped checkpoint resolves to the same config but for its trained reader, the
+    # engine of its perception (ONNX Runtime; the old one ran PyTorch, the default) and its
+    # room search
     shipped = checkpoint_model_config(read_checkpoint(SHIPPED).config_yaml, SHIPPED)
     assert config.perception.engine == "torch"
     config.instruction_reader = shipped.instruction_reader
     config.perception = shipped.perception
+    config.navigator.room_search = shipped.navigator.room_search  # its room_prior stage
     assert config == shipped
     # the records: what was renamed and dropped; the earlier ones by their new names
     state = written.state

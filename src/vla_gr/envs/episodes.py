@@ -9,6 +9,7 @@ episodes per house, as Habitat's datasets do) and is drawn from an RNG seeded by
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import logging
@@ -275,6 +276,23 @@ def sample_episode(
     elif house.seed != seed:
         raise ValueError(f"house seed {house.seed} is not episode {index}'s scene seed {seed}")
     return sample_episode_in_house(house, split, index, num_rooms, clutter)
+
+
+def sample_episodes_rooms_cycling(
+    split: str, first: int, count: int, max_rooms: int = 6
+) -> list[EpisodeSpec]:
+    """``count`` episodes of ``split`` from index ``first`` on in houses of 1..``max_rooms``
+    rooms drawn evenly: the k-th kept episode has ``1 + k % max_rooms`` rooms; an index whose
+    house hosts no episode is skipped (the next index takes its place)."""
+    if count < 0 or not 1 <= max_rooms <= 6:
+        raise ValueError(f"count={count} must be >= 0 and max_rooms={max_rooms} in [1, 6]")
+    out: list[EpisodeSpec] = []
+    index = first
+    while len(out) < count:
+        with contextlib.suppress(NoEpisodeError):  # a house with no episode: the next index
+            out.append(sample_episode(split, index, num_rooms=1 + len(out) % max_rooms))
+        index += 1
+    return out
 
 
 def validate_spec(
