@@ -59,6 +59,11 @@ def cluster():
     cluster_utils = pytest.importorskip("ray.cluster_utils")
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
     temp = tempfile.mkdtemp(prefix="ray", dir="/tmp")  # short: Ray's socket paths live there
+    # Ray records the head's address in its default temp folder whatever temp_dir says, and
+    # does not make that folder: on a machine that never ran Ray it must exist first
+    from ray._private.utils import get_ray_address_file
+
+    os.makedirs(os.path.dirname(get_ray_address_file(None)), exist_ok=True)
     node = {"num_cpus": 1, "object_store_memory": 80 * 2**20, "include_dashboard": False}
     node["dashboard_agent_listen_port"] = None  # a free port, not Ray's fixed default
     cluster = cluster_utils.Cluster(initialize_head=True, head_node_args={**node, "temp_dir": temp})
