@@ -7,7 +7,8 @@ episodes and their normal twins, and candidate rules replayed on them.
 
 ``collect`` runs each index's absent-object episode and normal twin (rooms cycling 1..6, as
 ``benchmarks/absent_episodes.py``) with ``navigator.not_found.steps=0`` (never declared) and
-writes, per episode, every S2 tick's (step, mode, committed, has_path, thin, explored m2).
+writes, per episode, every S2 tick's (step, mode, committed, has_path, thin, explored m2, goals
+rejected so far, whether a goal was ever seen).
 ``replay`` runs the shipped count (``SearchCount``) on them per rule, length and ``new_area``:
 how many absent episodes it would declare and the median step, and the normal episodes it would
 declare (those that succeeded: lost). A declaration only ends an episode, so up to the step it
@@ -28,7 +29,7 @@ RULES = {
 }
 
 
-def collect(split: str, first: int, count: int, out: str) -> None:
+def collect(split: str, first: int, count: int, out: str, kinds=("absent", "normal")) -> None:
     import gymnasium as gym
     import torch
 
@@ -45,6 +46,8 @@ def collect(split: str, first: int, count: int, out: str) -> None:
         for k in range(count):
             index, rooms = first + k, 1 + k % 6
             for kind, sample in (("absent", sample_absent_episode), ("normal", sample_episode)):
+                if kind not in kinds:
+                    continue
                 try:
                     spec = sample(split, index, num_rooms=rooms)
                 except NoEpisodeError:
@@ -63,6 +66,7 @@ def collect(split: str, first: int, count: int, out: str) -> None:
                                 "committed": nav.committed, "path": bool(out_.has_path[0]),
                                 "thin": nav.tight_left > 0,
                                 "explored": float(maps.explored[0].sum()) * cell_area,
+                                "rejected": int(nav.rejections), "seen": nav.ever_seen_goal,
                             })  # fmt: skip
                         obs, _, terminated, truncated, info = env.step(action)
                         done = terminated or truncated
@@ -86,6 +90,45 @@ def fires(ticks: list[dict], way, steps: int, new_area: float, plan_every: int =
         if count.update(quiet or way(tick), tick["explored"]):
             return tick["step"]
     return None
+
+
+def fires_two_lengths(
+    ticks: list[dict], steps: int, unrejected: int, new_area: float = 2.0, plan_every: int = 3
+):
+    """The step at which the shipped count declares when it needs ``steps`` once a goal was
+    rejected in the episode and ``unrejected`` while none was, or None."""
+    from vla_gr.agent.navigator.config import NotFoundConfig
+    from vla_gr.agent.navigator.search import SearchCount
+
+    count = SearchCount(NotFoundConfig(steps, new_area), -(-steps // plan_every))
+    longer = -(-unrejected // plan_every)
+    for tick in ticks:
+        quiet = tick["committed"] or tick["mode"] in ("look_around", "stop")
+        count.update(quiet or (tick["path"] and not tick["thin"]), tick["explored"])
+        if count.ticks >= (count.needed if tick.get("rejected", 0) else longer):
+            return tick["step"]
+    return None
+
+
+def replay_two_lengths(path: str, steps=(120, 180), unrejected=(180, 270, 360, 450, 600)):
+    """Absent and normal episodes declared when the count needs longer while no goal was
+    rejected in the episode."""
+    with open(path, encoding="utf-8") as f:
+        rows = [json.loads(line) for line in f]
+    absent = [r for r in rows if r["kind"] == "absent"]
+    normal = [r for r in rows if r["kind"] == "normal"]
+    print("| steps (a goal rejected) | steps (none rejected) | absent declared | median step | "
+          "normal declared | of them succeeded |")  # fmt: skip
+    print("|---|---|---|---|---|---|")
+    for short in steps:
+        for long in unrejected:
+            at = [fires_two_lengths(r["ticks"], short, long) for r in absent]
+            hit = [s for s in at if s is not None]
+            wrong = [r for r in normal if fires_two_lengths(r["ticks"], short, long) is not None]
+            median = int(np.median(hit)) if hit else "-"
+            lost = sum(r["success"] > 0 for r in wrong)
+            print(f"| {short} | {long} | {len(hit)}/{len(absent)} | {median} | {len(wrong)} | "
+                  f"{lost} |")  # fmt: skip
 
 
 def replay(path: str, lengths=(90, 150, 180, 200), areas=(float("inf"), 2.0)) -> None:
@@ -116,13 +159,15 @@ def main() -> None:
     c.add_argument("--first", type=int, required=True)
     c.add_argument("--count", type=int, required=True)
     c.add_argument("--out", required=True)
+    c.add_argument("--kinds", nargs="+", default=["absent", "normal"], choices=("absent", "normal"))
     r = sub.add_parser("replay")
     r.add_argument("traces")
     args = parser.parse_args()
     if args.command == "collect":
-        collect(args.split, args.first, args.count, args.out)
+        collect(args.split, args.first, args.count, args.out, tuple(args.kinds))
     else:
         replay(args.traces)
+        replay_two_lengths(args.traces)
 
 
 if __name__ == "__main__":

@@ -75,7 +75,7 @@ INTENT_DEV_SETS = READER_DEV_SETS + (
     "blind_d", "blind_e", "blind_f", "blind_not_understood", "blind_not_understood_c",
     "blind_not_understood_d", "blind_not_understood_e", "blind_not_understood_f",
     "blind_not_understood_g", "blind_g", "blind_h", "blind_i", "blind_j",
-    "blind_not_understood_h", "blind_k", "blind_not_understood_i",
+    "blind_not_understood_h", "blind_k", "blind_not_understood_i", "blind_not_understood_j",
 )  # fmt: skip
 
 
