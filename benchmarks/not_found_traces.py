@@ -95,17 +95,17 @@ def fires(ticks: list[dict], way, steps: int, new_area: float, plan_every: int =
 def fires_two_lengths(
     ticks: list[dict], steps: int, unrejected: int, new_area: float = 2.0, plan_every: int = 3
 ):
-    """The step at which the shipped count declares when it needs ``steps`` once a goal was
-    rejected in the episode and ``unrejected`` while none was, or None."""
+    """The step at which the shipped count would declare if it needed ``unrejected`` steps
+    instead of ``steps`` while no goal had been rejected in the episode, or None."""
     from vla_gr.agent.navigator.config import NotFoundConfig
     from vla_gr.agent.navigator.search import SearchCount
 
     count = SearchCount(NotFoundConfig(steps, new_area), -(-steps // plan_every))
-    longer = -(-unrejected // plan_every)
+    longer = -(-unrejected // plan_every)  # planner ticks
     for tick in ticks:
         quiet = tick["committed"] or tick["mode"] in ("look_around", "stop")
         count.update(quiet or (tick["path"] and not tick["thin"]), tick["explored"])
-        if count.ticks >= (count.needed if tick.get("rejected", 0) else longer):
+        if count.ticks >= (count.needed if tick["rejected"] else longer):
             return tick["step"]
     return None
 
