@@ -5,9 +5,8 @@ Requests come from the request grammar. Sentences that ask for nothing come from
 English: WordNet's usage examples of its verbs ("the laughter died down", "Is your cat
 spayed?"), statements, questions and remarks written by people, not templates. Four in five
 of those that name something get a house object put in its place ("She retained the green
-couch in the kitchen"), a third of them two ("she put the red plant by the tv"), so that
-naming a goal, or a goal and a landmark, is not what makes a request: the sentence's frame is.
-Messages of two remarks ask for nothing either, as a request beside a statement still asks.
+couch in the kitchen"), so that naming a goal is not what makes a request: the sentence's
+frame is.
 Examples that open with their own verb ("Cut the bread") are imperatives and left out.
 Requests told the other way round ("don't go to the red chair") ask to go nowhere either.
 """
@@ -28,8 +27,6 @@ _DETERMINERS = frozenset(("the", "a", "an", "my", "his", "her", "their", "this",
 #: Endings any sentence of the corpus gets, so that its punctuation tells nothing of its kind
 #: ("PURPLE CHAIR!!" asks; "what a chair!" does not).
 _ENDINGS = ("", "", "", ".", "!", "!!", "?", "...")
-#: How two sentences of one message are joined ("the tissue ossified. find the red chair").
-_LINKS = (". ", ", ", " - ", "; ", " so ")
 #: Grammar outcomes that still ask to go somewhere (the reader refuses them for other reasons).
 _ASKING = (None, "unknown_object", "unknown_colour", "unknown_room", "unknown_anchor", "two_goals")
 
@@ -50,32 +47,27 @@ def wordnet_statements() -> tuple[str, ...]:
     return tuple(sorted(out))
 
 
-def _with_house_object(sentence: str, grammar: RequestGrammar, rng, objects: int = 1) -> str | None:
-    """``sentence`` with ``objects`` determiners' nouns (as many as it has, at most) replaced
-    by described house objects; None when it has no determiner followed by a word."""
+def _with_house_object(sentence: str, grammar: RequestGrammar, rng) -> str | None:
+    """``sentence`` with one determiner's noun replaced by a described house object; None when
+    it has no determiner followed by a word."""
     words = sentence.split()
     spots = [k for k in range(len(words) - 1) if words[k].lower() in _DETERMINERS]
-    spots = [k for k in spots if k + 1 not in spots]  # "that the cat": "the cat"
     if not spots:
         return None
-    chosen = rng.choice(spots, size=min(objects, len(spots)), replace=False)
-    for k in sorted((int(k) for k in chosen), reverse=True):  # right to left: indices hold
-        words = words[:k] + [grammar.goal_description(rng)] + words[k + 2 :]
-    return " ".join(words)
+    k = spots[int(rng.integers(len(spots)))]
+    return " ".join(words[:k] + [grammar.goal_description(rng)] + words[k + 2 :])
 
 
 def remarks(grammar: RequestGrammar, count: int, seed: int) -> list[str]:
     """``count`` sentences that ask for nothing: WordNet statements, four in five of those
-    that can naming a house object, a third of those two ("she put the red plant by the
-    tv"), drawn with replacement under ``seed``."""
+    that can naming a house object (drawn with replacement under ``seed``)."""
     rng = np.random.default_rng(seed)
     pool = wordnet_statements()
     out = []
     while len(out) < count:
         sentence = pool[int(rng.integers(len(pool)))]
         if rng.random() < 0.8:
-            objects = 2 if rng.random() < 1 / 3 else 1
-            sentence = _with_house_object(sentence, grammar, rng, objects) or sentence
+            sentence = _with_house_object(sentence, grammar, rng) or sentence
         out.append(sentence)
     return out
 
@@ -85,11 +77,11 @@ def intent_corpus(grammar: RequestGrammar, count: int, seed: int) -> tuple[list[
     requests (but negations, which the tagger reads, and the grammar's chit-chat and gibberish,
     0), a quarter as many bare descriptions ("the green couch in the kitchen") and the requests
     among a fifth as many more, each beside a statement ("The tissue ossified. find the red
-    chair"). Asking for nothing (0): ``count`` remarks (three in ten after an opener: "hey
-    robot, ..."), a fifth as many messages of two remarks ("The tissue ossified; she retained
-    the couch") and a quarter as many requests told the other way round ("don't go to the red
-    chair", "stay away from the sofa"; three in ten with a reason after them). Every sentence
-    ends in a random punctuation mark or none."""
+    chair"). Asking for
+    nothing (0): ``count`` remarks (three in ten after an opener: "hey robot, ...") and a
+    quarter as many requests told the other way round ("don't go to the red chair", "stay away
+    from the sofa"; three in ten with a reason after them). Every sentence ends in a random
+    punctuation mark or none."""
     rng = np.random.default_rng(seed + 3)
     texts, labels = [], []
     for request in grammar.batch(count, seed):
@@ -100,15 +92,12 @@ def intent_corpus(grammar: RequestGrammar, count: int, seed: int) -> tuple[list[
     texts += [grammar.goal_description(rng) for _ in range(count // 4)]
     asking = [r.text for r in grammar.batch(count // 5, seed + 4) if r.refuse is None]
     for request, statement in zip(asking, remarks(grammar, len(asking), seed + 5)):
-        link = _LINKS[int(rng.integers(len(_LINKS)))]
+        link = (". ", ", ", " - ", "; ", " so ")[int(rng.integers(5))]
         first, second = (statement, request) if rng.random() < 0.6 else (request, statement)
         texts.append(first + link + second)
     labels += [1] * (len(texts) - len(labels))
     for remark in remarks(grammar, count, seed + 1):
         texts.append(f"{grammar.opener(rng)} {remark}" if rng.random() < 0.3 else remark)
-    said = remarks(grammar, 2 * (count // 5), seed + 7)
-    for first, second in zip(said[0::2], said[1::2]):  # two remarks in one message
-        texts.append(first + _LINKS[int(rng.integers(len(_LINKS)))] + second)
     for command, reason in zip(
         (grammar.negated_command(rng) for _ in range(count // 4)),
         remarks(grammar, count // 4, seed + 6),
