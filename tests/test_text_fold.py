@@ -1,5 +1,6 @@
 """fold_to_ascii: any printable Unicode to single-spaced printable ASCII, case kept."""
 
+import numpy as np
 import pytest
 
 from vla_gr.text_fold import fold_to_ascii
@@ -46,6 +47,18 @@ def test_the_result_is_printable_ascii_and_folding_twice_changes_nothing():
     assert fold_to_ascii(once) == once
     plain = "find the red chair in the kitchen, next to the tv!"
     assert fold_to_ascii(plain) == plain
+
+
+def test_ascii_takes_a_short_way_to_the_same_result():
+    from vla_gr.text_fold import _fold_unicode
+
+    rng = np.random.default_rng(0)
+    texts = [
+        "".join(map(chr, rng.integers(0, 128, size=int(n)))) for n in rng.integers(0, 40, 2000)
+    ]
+    texts += ["find the red chair\x00\x7f", " \t\n", "a - b -- c ... 'x' \"y\""]
+    for text in texts:
+        assert fold_to_ascii(text) == _fold_unicode(text), repr(text)
 
 
 def test_a_non_str_is_a_type_error():

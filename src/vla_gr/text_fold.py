@@ -32,6 +32,8 @@ _LETTERS = {
 }  # fmt: skip
 _TABLE = str.maketrans({**_QUOTES, **_ELLIPSIS, **_LETTERS, "\u2212": "-"})
 _SPACES = re.compile(r"\s+")
+#: ASCII control characters (0-31, 127) to a space.
+_ASCII_CONTROLS = str.maketrans(dict.fromkeys([*range(32), 127], " "))
 _DROPPED = ("Mn", "Me", "Cf")  # combining marks, enclosing marks, format characters
 
 
@@ -40,6 +42,13 @@ def fold_to_ascii(text: str) -> str:
     module docstring for each step. ``TypeError`` when ``text`` is not a str."""
     if not isinstance(text, str):
         raise TypeError(f"text must be a str, got {type(text).__name__}")
+    if text.isascii():  # every step but the last two is the identity on ASCII
+        return _SPACES.sub(" ", text.translate(_ASCII_CONTROLS)).strip()
+    return _fold_unicode(text)
+
+
+def _fold_unicode(text: str) -> str:
+    """:func:`fold_to_ascii` of any str, step by step (the module docstring)."""
     text = unicodedata.normalize("NFKC", text).translate(_TABLE)
     text = "".join("-" if unicodedata.category(c) == "Pd" else c for c in text)
     kept = []
