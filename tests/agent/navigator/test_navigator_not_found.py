@@ -89,3 +89,20 @@ def test_bad_steps_name_the_key_and_a_stint_of_thinner_planning_alone_never_decl
         NavigatorConfig(not_found=NotFoundConfig(150), tight=TightConfig(steps=150))
     NavigatorConfig(not_found=NotFoundConfig(0), tight=TightConfig(steps=150))  # off: any
     assert NavigatorConfig().not_found.steps > NavigatorConfig().tight.steps
+
+
+@pytest.mark.parametrize("second_look", [False, True])
+def test_a_second_look_forgets_the_rejected_goals_once_before_declaring(second_look):
+    nav = make_nav(not_found={"steps": 20, "second_look": second_look}, tight={"steps": 10})
+    centre = np.array(nav.field.grid.shape[::-1], float) * nav.field.cell_size / 2  # metres
+    nav._reject_goal(centre, "object")  # a goal given up: its cells vote no more
+    assert nav.rejected.any() and nav.rejections == 1
+    plans = _searched_room(nav, FULL_TURN + 60)
+    first = next(k for k, p in enumerate(plans) if p.not_found)
+    if second_look:  # searched once: the rejected cells are forgotten, and the count restarts
+        assert first == FULL_TURN + 40 - 1 and nav.search.looked_again and not nav.rejected.any()
+    else:
+        assert first == FULL_TURN + 20 - 1 and nav.rejected.any()
+    assert all(p.not_found for p in plans[first:]) and not any(p.stop for p in plans)
+    nav.reset()
+    assert not nav.search.looked_again  # once per episode

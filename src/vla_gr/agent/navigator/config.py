@@ -280,6 +280,10 @@ class NotFoundConfig:
     # m2 the map may grow by while those steps run; more starts them again (planning thinner
     # got the robot through a narrow passage into house it had not seen)
     new_area: float = 2.0
+    # the first time the house counts as searched with goals rejected, forget where they were
+    # (their cells vote again) and search on instead of declaring: a right goal rejected with
+    # the wrong one beside it (a chair at the table the goal head also lit) gets a second look
+    second_look: bool = False
 
     def __post_init__(self) -> None:
         _check(self, "not_found", {"int >= 0": ("steps",), ">= 0": ("new_area",)})

@@ -302,9 +302,11 @@ class Navigator:
         plan.goal_confidence, plan.goal_distance = confidence, distance
         way = self.committed or plan.stop or plan.mode == "look_around"
         way = way or (bool(out.has_path[0]) and not thin)  # a frontier at the robot's own radius
-        plan.not_found = self.search.update(
-            way, float(maps.explored[0].sum()) * self.field.cell_size**2
-        )
+        searched = self.search.update(way, float(maps.explored[0].sum()) * self.field.cell_size**2)
+        if searched and self.search.look_again(bool(self.rejected.any())):
+            self.rejected[:] = False  # the rejected goals vote again (not_found.second_look)
+            searched = False
+        plan.not_found = searched
         if plan.stop and not self.stop_evidence:
             self.stop_evidence = self._evidence(goal_cells, goal_visible, like, distance, nearest)
         plan.max_speed = cfg.tight.speed if self.tight_left > 0 else 1.0

@@ -5,7 +5,9 @@ robot's own radius, a STOP, the look around) and how much of the map has been se
 counts as searched once no way has been open and the map has grown by at most ``new_area`` for
 ``steps`` on end: more newly seen house (planning thinner got the robot through a narrow
 passage) starts the count again. The settings are ``model.navigator.not_found``
-(:class:`~vla_gr.agent.navigator.config.NotFoundConfig`); 0 steps never declares.
+(:class:`~vla_gr.agent.navigator.config.NotFoundConfig`); 0 steps never declares. With
+``second_look`` the first time the count says searched with goals rejected, the navigator
+forgets where they were (their cells vote again) and the count starts again.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ class SearchCount:
         self.config, self.needed = config, int(needed)
         self.ticks = 0  # ticks on end without an open way or new house
         self.area = 0.0  # m2 of the map seen when the count last started
+        self.looked_again = False  # the second look was taken (not_found.second_look)
 
     def update(self, open_way: bool, seen: float) -> bool:
         """One planner tick (``seen``: m2 of the map seen); True once the house is searched."""
@@ -35,3 +38,12 @@ class SearchCount:
         else:
             self.ticks += 1
         return self.config.steps > 0 and self.ticks >= self.needed
+
+    def look_again(self, rejected: bool) -> bool:
+        """Whether to search once more instead of declaring, the house counted as searched
+        (``rejected``: goals were rejected this episode): with ``second_look``, the first
+        time only; the count then starts again."""
+        if not (self.config.second_look and rejected and not self.looked_again):
+            return False
+        self.looked_again, self.ticks = True, 0
+        return True
