@@ -13,10 +13,11 @@ then without it on just those episodes, and put the two together::
     python benchmarks/rerun_fired.py merge runs/on runs/off
 
 ``episodes`` writes the specs of the episodes in which S2 rejected a goal for ``--reason``
-(the rows' ``rejected_goals``); ``merge`` prints SR, SPL and collision rate of the run with
-the rule and of the
-same episodes without it (the first run's rows, those of the second in their place), and the
-episodes won and lost.
+(the rows' ``rejected_goals``; "any" for any reason), with ``--declared`` only those that ended
+in that declared outcome (``not_found``: where ``navigator.not_found.second_look`` acts);
+``merge`` prints SR, SPL and collision rate of the run with the rule and of the same episodes
+without it (the first run's rows, those of the second in their place), and the episodes won
+and lost.
 """
 
 from __future__ import annotations
@@ -29,15 +30,17 @@ from vla_gr.envs.metrics import aggregate
 from vla_gr.evaluation.runner import read_rows
 
 
-def fired_specs(run_dir: Path, reason: str) -> list[EpisodeSpec]:
-    """Specs of the episodes of ``run_dir`` in which a goal was rejected for ``reason``."""
+def fired_specs(run_dir: Path, reason: str, declared: str | None = None) -> list[EpisodeSpec]:
+    """Specs of the episodes of ``run_dir`` in which a goal was rejected for ``reason``
+    ("any": for any reason) and, with ``declared``, that ended in that declared outcome."""
     rows = read_rows(run_dir / "episodes.jsonl")
     if not rows:
         raise SystemExit(f"{run_dir}/episodes.jsonl holds no episodes")
     return [
         EpisodeSpec.from_dict(r["spec"])
         for r in rows
-        if any(g.get("reason") == reason for g in r["rejected_goals"])
+        if any(reason in ("any", g.get("reason")) for g in r["rejected_goals"])
+        and declared in (None, r.get("declared"))
     ]
 
 
@@ -67,14 +70,15 @@ def main() -> None:
     sub = parser.add_subparsers(dest="command", required=True)
     ep = sub.add_parser("episodes", help="specs of the episodes where the rule fired")
     ep.add_argument("run_dir", type=Path)
-    ep.add_argument("--reason", required=True, help="a rejection reason, e.g. unreachable")
+    ep.add_argument("--reason", required=True, help="a rejection reason (unreachable, ...; any)")
+    ep.add_argument("--declared", help="only episodes ending in this declared outcome (not_found)")
     ep.add_argument("--out", type=Path, required=True)
     mg = sub.add_parser("merge", help="the run with the rule against the same without it")
     mg.add_argument("on_dir", type=Path)
     mg.add_argument("off_dir", type=Path)
     args = parser.parse_args()
     if args.command == "episodes":
-        specs = fired_specs(args.run_dir, args.reason)
+        specs = fired_specs(args.run_dir, args.reason, args.declared)
         save_episodes(args.out, specs)
         print(f"{len(specs)} episodes with a {args.reason!r} rejection -> {args.out}")
         return

@@ -48,6 +48,13 @@ def test_the_fired_episodes_and_the_run_without_the_rule(tmp_path):
     ])  # fmt: skip
     specs = bench.fired_specs(on, "unreachable")
     assert [s.episode_id for s in specs] == ["val-000000", "val-000001", "val-000003"]
+    assert len(bench.fired_specs(on, "any")) == 4
+    rows = [json.loads(line) for line in (on / "episodes.jsonl").read_text().splitlines()]
+    rows[1]["declared"], rows[2]["declared"] = "not_found", "not_found"
+    (tmp_path / "declared").mkdir()
+    (tmp_path / "declared" / "episodes.jsonl").write_text("\n".join(map(json.dumps, rows)))
+    declared = bench.fired_specs(tmp_path / "declared", "any", "not_found")
+    assert [s.episode_id for s in declared] == ["val-000001", "val-000002"]
     bench.save_episodes(tmp_path / "fired.jsonl", specs)
     assert load_episodes(tmp_path / "fired.jsonl") == specs  # a file vla-gr eval runs
     off = _write(tmp_path / "off", [
