@@ -13,6 +13,7 @@ Writes ``<out>.json`` and ``<out>.md``. Run it on a quiet machine.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import time
 from pathlib import Path
@@ -33,15 +34,11 @@ def build(every_step: bool):
     from vla_gr.agent.reading.vocabulary import WordTable
     from vla_gr.text_fold import _fold_unicode
 
-    patch = mock.patch.object(text, "fold_to_ascii", _fold_unicode) if every_step else None
+    patch = mock.patch.object(text, "fold_to_ascii", _fold_unicode)
     t0 = time.perf_counter()
-    if patch is None:
+    with patch if every_step else contextlib.nullcontext():
         table = WordTable()
         _ = table._nouns
-    else:
-        with patch:
-            table = WordTable()
-            _ = table._nouns
     return time.perf_counter() - t0, table
 
 

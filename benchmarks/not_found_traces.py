@@ -18,14 +18,21 @@ fires a replay is the run the agent would have made.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 
 import numpy as np
 
+
+def _own_radius(tick: dict) -> bool:
+    """A tick's path opens a way at the robot's own radius (not planning thinner)."""
+    return tick["path"] and not tick["thin"]
+
+
 #: (rule, whether a tick's path opens a way) replayed by ``replay``.
 RULES = {
     "no path at any radius": lambda tick: tick["path"],
-    "no way at the own radius (shipped)": lambda tick: tick["path"] and not tick["thin"],
+    "no way at the own radius (shipped)": _own_radius,
 }
 
 
@@ -78,77 +85,69 @@ def collect(split: str, first: int, count: int, out: str, kinds=("absent", "norm
                 print(kind, index, rooms, info["steps"], info["success"], flush=True)
 
 
-def fires(ticks: list[dict], way, steps: int, new_area: float, plan_every: int = 3):
+def fires(
+    ticks: list[dict], way, steps: int, new_area: float, plan_every: int = 3,
+    unrejected: int | None = None,
+):  # fmt: skip
     """The step at which the shipped count (:class:`~vla_gr.agent.navigator.search.SearchCount`)
-    declares with ``way`` deciding whether a tick's path opens a way, or None."""
+    declares with ``way`` deciding whether a tick's path opens a way, or None; with
+    ``unrejected``, the count needs that many steps instead while no goal had been rejected."""
     from vla_gr.agent.navigator.config import NotFoundConfig
     from vla_gr.agent.navigator.search import SearchCount
 
     count = SearchCount(NotFoundConfig(steps, new_area), -(-steps // plan_every))
+    longer = None if unrejected is None else -(-unrejected // plan_every)  # planner ticks
     for tick in ticks:
         quiet = tick["committed"] or tick["mode"] in ("look_around", "stop")
-        if count.update(quiet or way(tick), tick["explored"]):
+        searched = count.update(quiet or way(tick), tick["explored"])
+        if longer is not None and not tick["rejected"]:
+            searched = count.ticks >= longer
+        if searched:
             return tick["step"]
     return None
 
 
-def fires_two_lengths(
-    ticks: list[dict], steps: int, unrejected: int, new_area: float = 2.0, plan_every: int = 3
-):
-    """The step at which the shipped count would declare if it needed ``unrejected`` steps
-    instead of ``steps`` while no goal had been rejected in the episode, or None."""
-    from vla_gr.agent.navigator.config import NotFoundConfig
-    from vla_gr.agent.navigator.search import SearchCount
+def _load(path: str) -> tuple[list[dict], list[dict]]:
+    """(absent-object episodes, normal twins) of a traces file."""
+    with open(path, encoding="utf-8") as f:
+        rows = [json.loads(line) for line in f]
+    return [r for r in rows if r["kind"] == "absent"], [r for r in rows if r["kind"] == "normal"]
 
-    count = SearchCount(NotFoundConfig(steps, new_area), -(-steps // plan_every))
-    longer = -(-unrejected // plan_every)  # planner ticks
-    for tick in ticks:
-        quiet = tick["committed"] or tick["mode"] in ("look_around", "stop")
-        count.update(quiet or (tick["path"] and not tick["thin"]), tick["explored"])
-        if count.ticks >= (count.needed if tick["rejected"] else longer):
-            return tick["step"]
-    return None
+
+def _scores(absent: list[dict], normal: list[dict], fire) -> str:
+    """Table cells of one rule (``fire(ticks)``: the declaring step or None): absent episodes
+    declared, their median step, normal ones declared and how many of those succeeded."""
+    hit = [s for s in (fire(r["ticks"]) for r in absent) if s is not None]
+    wrong = [r for r in normal if fire(r["ticks"]) is not None]
+    median = int(np.median(hit)) if hit else "-"
+    lost = sum(r["success"] > 0 for r in wrong)
+    return f"{len(hit)}/{len(absent)} | {median} | {len(wrong)} | {lost}"
 
 
 def replay_two_lengths(path: str, steps=(120, 180), unrejected=(180, 270, 360, 450, 600)):
     """Absent and normal episodes declared when the count needs longer while no goal was
     rejected in the episode."""
-    with open(path, encoding="utf-8") as f:
-        rows = [json.loads(line) for line in f]
-    absent = [r for r in rows if r["kind"] == "absent"]
-    normal = [r for r in rows if r["kind"] == "normal"]
+    absent, normal = _load(path)
     print("| steps (a goal rejected) | steps (none rejected) | absent declared | median step | "
           "normal declared | of them succeeded |")  # fmt: skip
     print("|---|---|---|---|---|---|")
     for short in steps:
         for long in unrejected:
-            at = [fires_two_lengths(r["ticks"], short, long) for r in absent]
-            hit = [s for s in at if s is not None]
-            wrong = [r for r in normal if fires_two_lengths(r["ticks"], short, long) is not None]
-            median = int(np.median(hit)) if hit else "-"
-            lost = sum(r["success"] > 0 for r in wrong)
-            print(f"| {short} | {long} | {len(hit)}/{len(absent)} | {median} | {len(wrong)} | "
-                  f"{lost} |")  # fmt: skip
+            fire = functools.partial(fires, way=_own_radius, steps=short, new_area=2.0,
+                                     unrejected=long)  # fmt: skip
+            print(f"| {short} | {long} | {_scores(absent, normal, fire)} |")
 
 
 def replay(path: str, lengths=(90, 150, 180, 200), areas=(float("inf"), 2.0)) -> None:
-    with open(path, encoding="utf-8") as f:
-        rows = [json.loads(line) for line in f]
-    absent = [r for r in rows if r["kind"] == "absent"]
-    normal = [r for r in rows if r["kind"] == "normal"]
+    absent, normal = _load(path)
     print("| rule | steps | new_area | absent declared | median step | normal declared | "
           "of them succeeded |")  # fmt: skip
     print("|---|---|---|---|---|---|---|")
     for name, way in RULES.items():
         for area in areas:
             for steps in lengths:
-                at = [fires(r["ticks"], way, steps, area) for r in absent]
-                hit = [s for s in at if s is not None]
-                wrong = [r for r in normal if fires(r["ticks"], way, steps, area) is not None]
-                median = int(np.median(hit)) if hit else "-"
-                lost = sum(r["success"] > 0 for r in wrong)
-                print(f"| {name} | {steps} | {area} | {len(hit)}/{len(absent)} | {median} | "
-                      f"{len(wrong)} | {lost} |")  # fmt: skip
+                fire = functools.partial(fires, way=way, steps=steps, new_area=area)
+                print(f"| {name} | {steps} | {area} | {_scores(absent, normal, fire)} |")
 
 
 def main() -> None:
