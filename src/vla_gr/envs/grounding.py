@@ -86,7 +86,7 @@ RELATION_PHRASES: tuple[str, ...] = ("close to", "near to", "nearby", "right nex
 #: Colours no object of the world has: a request naming one fits nothing (it is not ignored).
 OTHER_COLOURS: tuple[str, ...] = (
     "pink", "brown", "grey", "gray", "beige", "silver", "gold", "golden", "cyan", "turquoise",
-    "navy", "maroon", "cream", "violet", "magenta",
+    "navy", "maroon", "cream", "violet", "magenta", "lilac", "lavender",
 )  # fmt: skip
 _ARTICLES = frozenset({"the", "a", "an", "that", "this", "some", "any", "one"})
 _NEGATION = re.compile(

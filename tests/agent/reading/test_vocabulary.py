@@ -30,7 +30,7 @@ def table():
         (["kitchen's"], "room", "kitchen"),  # a possessive
         (["chairs"], "category", "chair"),  # a plural
         (["crimson"], "colour", "red"),
-        (["navy"], "colour", "blue"),
+        (["reddish"], "colour", "red"),
     ],
 )
 def test_words_name_their_class(table, words, kind, name):
@@ -39,7 +39,13 @@ def test_words_name_their_class(table, words, kind, name):
 
 @pytest.mark.parametrize(
     ("words", "kind"),
-    [(["piano"], "category"), (["garage"], "room"), (["pink"], "colour"), (["qwzx"], "category")],
+    [
+        (["piano"], "category"),
+        (["garage"], "room"),
+        (["pink"], "colour"),
+        (["navy"], "colour"),  # a shade with a name of its own: no object is navy
+        (["qwzx"], "category"),
+    ],
 )
 def test_words_no_table_holds_name_nothing(table, words, kind):
     assert table.name_in(words, kind) is None
@@ -75,6 +81,17 @@ def test_three_letter_mistypes_and_chat_words_are_left_alone(table, word):
 @pytest.mark.parametrize("word", ["khaki", "russet", "golden", "beige", "teal", "cream", "slate"])
 def test_colours_wordnet_knows_beyond_the_eight_are_other_colours(table, word):
     assert word in table.other_colours and table.look_up([word], "colour") is None
+
+
+def test_the_colours_the_world_says_no_object_has_are_other_colours_to_the_reader(table):
+    # one account of colour: a word the world grounds to no object ("the navy bed" fits
+    # nothing) is never read as one of the eight, so the agent refuses it instead of acting
+    from vla_gr.agent.reading.vocabulary import COLOUR_WORDS
+    from vla_gr.envs.grounding import OTHER_COLOURS
+
+    shades = {w for words in COLOUR_WORDS.values() for w in words}
+    assert not shades & set(OTHER_COLOURS)
+    assert set(OTHER_COLOURS) <= table.other_colours
 
 
 def test_features_mark_category_room_colour_relation_and_negation_words(table):

@@ -72,16 +72,18 @@ ROOM_SENSES: dict[str, tuple[str, ...]] = {
 }
 #: WordNet senses of a whole dwelling: a place in a request that narrows nothing down.
 DWELLING_SENSES: tuple[str, ...] = ("dwelling.n.01", "apartment.n.01", "home.n.01")
-#: Colour words: each colour's name, its "-ish" form and everyday shades of it.
+#: Colour words: each colour's name, its "-ish" form and shades that are that colour ("crimson"
+#: is a red). A shade with a name of its own ("navy", "violet", "lilac") is another colour, as
+#: the world counts it (``envs.grounding.OTHER_COLOURS``): no object has it.
 COLOUR_WORDS: dict[str, tuple[str, ...]] = {
     "red": ("red", "reddish", "crimson", "scarlet"),
-    "blue": ("blue", "bluish", "blueish", "navy"),
+    "blue": ("blue", "bluish", "blueish"),
     "green": ("green", "greenish", "emerald"),
     "yellow": ("yellow", "yellowish"),
     "white": ("white", "whitish"),
     "black": ("black", "blackish"),
     "orange": ("orange", "orangey", "orangish"),
-    "purple": ("purple", "purplish", "violet", "lilac", "lavender"),
+    "purple": ("purple", "purplish"),
 }
 RELATION_WORDS = _words(
     "next to near nearby beside besides by close alongside adjacent against at beneath "
