@@ -76,6 +76,7 @@ INTENT_DEV_SETS = READER_DEV_SETS + (
     "blind_not_understood_d", "blind_not_understood_e", "blind_not_understood_f",
     "blind_not_understood_g", "blind_g", "blind_h", "blind_i", "blind_j",
     "blind_not_understood_h", "blind_k", "blind_not_understood_i", "blind_not_understood_j",
+    "blind_not_understood_k", "blind_not_understood_n",
 )  # fmt: skip
 
 

@@ -8,8 +8,8 @@ questions, wishes, the noun said first ("green plant by the desk - go there"), a
 ("the bathroom plant"), relative clauses ("the sofa that is blue"), the room or the anchor said
 first, context sentences around it ("I'm tired."), politeness, typing slips. It also says
 what the reader must refuse: goals it cannot name (an object no category holds, a colour or
-room no table holds), negations ("the chair that isn't red"), two goals in a row, and words
-that ask for nothing.
+room no table holds), negations ("the chair that isn't red"), two goals (in a row, both
+together, one a stop on the way to the other), and words that ask for nothing.
 
 Words come from the reader's own tables (:mod:`vla_gr.agent.reading.vocabulary`): the class
 names and the WordNet words for them, weighted towards the common ones, and WordNet's other
@@ -147,6 +147,27 @@ _SECOND = (
     ". then go to", ". after that, find", ". next, go to", ". then find", ". now", ". and",
     ". afterwards, go to", "; then", ". after that go to", "followed by", ", followed by",
     "and afterwards",
+)  # fmt: skip
+#: Two goals asked for together: "both the bed and the sofa", "... - go to each".
+_BOTH = ("both", "both the", "visit both", "go to both", "check both", "i need both",
+         "find both", "take me to both", "see both", "i want both", "go see both")  # fmt: skip
+_BOTH_AND = ("and", "and the", "and also", "as well as", "plus", "&", "and also the")
+_EACH = ("- go to each", ", each of them", "one after the other", "in that order", ", both",
+         "go to each", "visit each", "both please", "- both of them", ", one then the other",
+         "in any order", "each one", ", all two")  # fmt: skip
+#: A stop on the way to another goal: "stop by the plant on your way to the toilet".
+_ON_THE_WAY = (
+    ("stop by", "on your way to"), ("swing by", "on the way to"), ("pass by", "before going to"),
+    ("visit", "before you go to"), ("check", "on your way over to"), ("drop by", "then go on to"),
+    ("stop at", "on the way to"), ("pop by", "en route to"), ("go past", "and end up at"),
+    ("call at", "before heading to"), ("swing past", "and then carry on to"),
+)  # fmt: skip
+#: One goal after another, the first said in a clause: "after the bed, go to the toilet".
+_AFTER = (
+    ("after", ", go to"), ("after the visit to", ", head to"), ("once you've been to", ", find"),
+    ("when you're done at", ", go to"), ("start at", "and finish at"), ("first", ", then"),
+    ("begin with", ", then go to"), ("after you reach", "go on to"), ("once at", ", move to"),
+    ("when you get to", ", continue to"), ("from", "go on to"), ("once you find", ", find"),
 )  # fmt: skip
 _GIBBERISH_LETTERS = "abcdefghijklmnopqrstuvwxyz"
 #: How a request is turned into its opposite before its verb: "don't go to ...".
@@ -559,6 +580,8 @@ class RequestGrammar:
         return seg
 
     def _two_goals(self, rng, noun, colour, room, anchor) -> list:
+        """Two goals: joined ("... and then ..."), asked for together ("both ... and ..."),
+        one a stop on the way to the other, or the first said in a clause ("after ...")."""
         first = self._goal_phrase(rng, noun, colour, room, None)
         second_goal = self._pick(rng, self.categories)  # a landmark too: "the chair & the table"
         second_colour = self._colour(rng, self._pick(rng, list(COLOUR_WORDS)))
@@ -570,10 +593,29 @@ class RequestGrammar:
             None,
             goal_tag="SECOND",
         )
-        lead = [(self._pick(rng, ("first", "go to", "first go to", "find", "")), "O")]
-        link = [(self._pick(rng, _AND if rng.random() < 0.4 else _SECOND), "O")]
-        verb = [(self._pick(rng, ("", "go to", "find", "the")), "O")] if rng.random() < 0.5 else []
-        return lead + first + link + verb + second
+        form = rng.random()
+        if form < 0.15:
+            seg = [(self._pick(rng, _BOTH), "O")] + first
+            seg += [(self._pick(rng, _BOTH_AND), "O")] + second
+            seg += [(self._pick(rng, _EACH), "O")] if rng.random() < 0.5 else []
+        elif form < 0.3:
+            stop, way = self._pick(rng, _ON_THE_WAY)
+            seg = [(stop, "O")] + first + [(way, "O")] + second
+        elif form < 0.42:
+            before, then = self._pick(rng, _AFTER)
+            seg = [(before, "O")] + first + [(then, "O")] + second
+        else:
+            lead = self._pick(rng, ("first", "go to", "first go to", "find", ""))
+            lead = self._pick(rng, _VERBS) if rng.random() < 0.4 else lead
+            link = [(self._pick(rng, _AND if rng.random() < 0.4 else _SECOND), "O")]
+            verb = self._pick(rng, ("", "go to", "find", "the"))
+            verb = [(verb, "O")] if rng.random() < 0.5 else []
+            seg = [(lead, "O")] + first + link + verb + second
+        if rng.random() < 0.3:
+            seg = [(self._pick(rng, _POLITE_BEFORE), "O")] + seg
+        if rng.random() < 0.2:
+            seg = seg + [(self._pick(rng, _POLITE_AFTER), "O")]
+        return seg
 
     # -- surface: words, typing slips --------------------------------------------------------
     def _finish(self, rng, segments: list, fields: dict, refuse: str | None) -> LabelledRequest:
