@@ -75,3 +75,19 @@ def test_a_second_goal_is_any_object_landmarks_included(grammar):
             named = table.name_in([table.repair(w) for w in words], "category")
             seconds.add(named.name if named else None)
     assert {"table", "cabinet"} <= seconds and set(GOAL_CATEGORIES) <= seconds
+
+
+def test_two_goals_come_in_every_shape_and_each_names_a_second_goal(grammar):
+    """Joined, asked for together ("both ... and ..."), a stop on the way to the other, or the
+    first in a clause ("after the bed, go to ..."): a SECOND span, after the goal, every time."""
+    shapes = {"both": 0, "way to": 0, "after": 0}
+    for r in grammar.batch(3000, seed=6):
+        if r.refuse != "two_goals":
+            continue
+        tags = list(r.tags)
+        assert "SECOND" in tags and "GOAL" in tags
+        assert tags.index("GOAL") < tags.index("SECOND")
+        text = " ".join(r.words)
+        for shape in shapes:
+            shapes[shape] += f"{shape} " in f"{text} "
+    assert min(shapes.values()) >= 5, shapes
