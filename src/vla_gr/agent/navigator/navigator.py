@@ -83,6 +83,7 @@ from vla_gr.agent.navigator.local_planner import LocalPlanner
 from vla_gr.agent.navigator.map_edits import MapEdits
 from vla_gr.agent.navigator.room_search import RoomSearch
 from vla_gr.agent.navigator.search import SearchCount
+from vla_gr.agent.navigator.sight import nearest_goal_in_sight
 from vla_gr.core.gr_field.config import GRFieldConfig
 from vla_gr.core.gr_field.mapping import points_to_cells
 from vla_gr.core.gr_field.planning import GRField
@@ -294,7 +295,10 @@ class Navigator:
         goal_cells = maps.goal[0].numpy()  # (H, W) confirmed goal cells
         self.committed = bool(goal_cells.any())
         robot_xy = maps.robot_xy[0].numpy()  # (2,) from the grid corner
-        distance, nearest = self._goal_distance(goal_cells, robot_xy)
+        distance, nearest = nearest_goal_in_sight(
+            goal_cells, robot_xy, self.field.maps.occupied[0].numpy(), self.field.cell_size,
+            self.config.approach.goal_halo_cells,
+        )  # fmt: skip
         votes = float(self.goal_votes.max()) if self.goal_votes.any() else 0.0
         confidence = min(1.0, votes / cfg.confirmation.ticks)
         p = pose[0].numpy().astype(np.float64)  # (3,)
@@ -525,31 +529,6 @@ class Navigator:
             self.goal_votes[rc[:, 0], rc[:, 1]] += 1
             self.ever_seen_goal = True
         return visible
-
-    def _goal_distance(self, goal_cells: np.ndarray, robot_xy: np.ndarray):
-        """Distance (m) to the nearest goal cell centre in line of sight, and that centre (2,)."""
-        if not goal_cells.any():
-            return math.inf, None
-        h = self.field.cell_size
-        rows, cols = np.nonzero(goal_cells)
-        centres = (np.stack([cols, rows], axis=-1) + 0.5) * h  # (M, 2) x, y from the corner
-        dist = np.linalg.norm(centres - robot_xy, axis=-1)  # (M,)
-        halo = self.config.approach.goal_halo_cells
-        near_goal = ndimage.binary_dilation(goal_cells, iterations=halo)
-        occupied = self.field.maps.occupied[0].numpy() & ~near_goal  # (H, W)
-        for k in np.argsort(dist)[:8]:
-            if self._line_of_sight(robot_xy, centres[k], occupied):
-                return float(dist[k]), centres[k]
-        k = int(np.argmin(dist))
-        return math.inf, centres[k]
-
-    def _line_of_sight(self, a: np.ndarray, b: np.ndarray, occupied: np.ndarray) -> bool:
-        """No occupied (non-goal) cell on the segment a -> b (metric, from the grid corner)."""
-        h = self.field.cell_size
-        n = max(2, int(np.ceil(np.linalg.norm(b - a) / (0.5 * h))) + 1)
-        t = np.linspace(0.0, 1.0, n)[:, None]  # (n, 1)
-        rc = np.floor((a[None] * (1 - t) + b[None] * t)[:, ::-1] / h).astype(int)  # (n, 2)
-        return not occupied[rc[:, 0], rc[:, 1]].any()
 
     def _stuck(self) -> bool:
         """Moved less than recovery.stuck_distance over the last recovery.stuck_steps (window
