@@ -40,6 +40,13 @@ REFUSED = [
     ("that green chair is honestly so ugly lol", "does not ask me to go anywhere"),
     ("has anyone watered the blue plant this week?", "does not ask me to go anywhere"),
     ("my red chair is broken", "does not ask me to go anywhere"),
+    # an object word inside a longer noun no table holds names nothing: the whole noun is
+    # what the reader did not understand
+    ("Hey, can you find the trash can in the office?", "'trash can'"),
+    ("go to the plant by the watering can", "'watering can'"),
+    ("visit both the couch and the bed please", "one goal at a time"),
+    ("stop by the plant on your way to the toilet", "one goal at a time"),
+    ("go to the navy bed", "'navy'"),
 ]
 
 

@@ -164,3 +164,10 @@ def test_slip_features_mark_a_known_word_one_slip_from_a_colour_or_room(table):
 def test_a_class_word_inside_a_longer_noun_no_table_holds_names_nothing(table, words, name):
     found = table.name_in(words, "category")
     assert (found.name if found else None) == name
+
+
+def test_the_longer_noun_around_an_object_word_is_found_in_the_request(table):
+    words = ["find", "the", "trash", "can", "in", "the", "office"]
+    assert table.compound_around(words, 3, 1) == slice(2, 4)  # "trash can" around "can"
+    assert table.compound_around(["find", "the", "sofa", "bed"], 3, 1) is None  # a sofa
+    assert table.compound_around(["the", "red", "chair"], 2, 1) is None

@@ -255,6 +255,10 @@ class InstructionReader(nn.Module):
             column = probs[:, TAGS.index(tag)].clone() if len(words) else torch.zeros(0)
             for span in spans.get(tag, []):
                 said = [words[k] for k in span]
+                around = kind == "category" and table.compound_around(words, span[0], len(span))
+                if around:  # the object word is part of a longer noun: "the trash can"
+                    unknown.append(" ".join(words[around]))
+                    continue
                 named = table.name_in(said, kind)
                 if named is None and not any(  # a slip onto another word: "bleu" as a colour
                     table.in_compound(said, k, 1) for k in range(len(said))

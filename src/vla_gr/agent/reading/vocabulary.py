@@ -375,14 +375,19 @@ class WordTable:
     def in_compound(self, words: Sequence[str], start: int, size: int) -> bool:
         """Whether ``words[start:start + size]`` lies inside a longer span of ``words`` that
         is a noun no table holds (the last word in its plural or possessive form too)."""
+        return self.compound_around(words, start, size) is not None
+
+    def compound_around(self, words: Sequence[str], start: int, size: int) -> slice | None:
+        """The span of ``words`` (a slice) that holds ``words[start:start + size]`` and more
+        and is a noun no table holds ("trash can" around "can"), or None."""
         for first in range(max(0, start + size - self.MAX_PHRASE), start + 1):
             for end in range(start + size, min(len(words), first + self.MAX_PHRASE) + 1):
                 if end - first > size and any(
                     (*words[first : end - 1], last) in self.compounds
                     for last in _singular(words[end - 1])
                 ):
-                    return True
-        return False
+                    return slice(first, end)
+        return None
 
     def features(self, words: Sequence[str]) -> tuple[list[str], list[list[float]]]:
         """(the words with typing slips repaired, one :data:`FEATURES` vector per word)."""
