@@ -109,22 +109,36 @@ def upwind_gradient(travel: np.ndarray, cell_size: float = 1.0) -> tuple[np.ndar
     return grads[0], grads[1]
 
 
-def _bilinear(field: np.ndarray, finite: np.ndarray, fr: float, fc: float) -> float:
-    """Bilinear ``field`` (H, W) at fractional cell-centre (row, col), over finite corners."""
-    H, W = field.shape
+def _corners(finite: np.ndarray, fr: float, fc: float) -> list[tuple[int, int, float]]:
+    """The (row, col, weight) of the finite corners with weight > 0 of bilinear interpolation
+    at fractional cell-centre (row, col) on a grid of ``finite`` (H, W)'s shape."""
+    H, W = finite.shape
     fr = min(max(fr, 0.0), H - 1.0)
     fc = min(max(fc, 0.0), W - 1.0)
     r0, c0 = min(int(fr), H - 2) if H > 1 else 0, min(int(fc), W - 2) if W > 1 else 0
     ar, ac = fr - r0, fc - c0
-    total, weight = 0.0, 0.0
+    out = []
     for dr, wr in ((0, 1.0 - ar), (1, ar)):
         for dc, wc in ((0, 1.0 - ac), (1, ac)):
             r, c = min(r0 + dr, H - 1), min(c0 + dc, W - 1)
             w = wr * wc
             if finite[r, c] and w > 0:
-                total += w * field[r, c]
-                weight += w
+                out.append((r, c, w))
+    return out
+
+
+def _interpolate(field: np.ndarray, corners: list[tuple[int, int, float]]) -> float:
+    """``field`` (H, W) at the point of :func:`_corners`: the weighted mean of its corners."""
+    total, weight = 0.0, 0.0
+    for r, c, w in corners:
+        total += w * field[r, c]
+        weight += w
     return total / weight if weight > 0 else np.inf
+
+
+def _bilinear(field: np.ndarray, finite: np.ndarray, fr: float, fc: float) -> float:
+    """Bilinear ``field`` (H, W) at fractional cell-centre (row, col), over finite corners."""
+    return _interpolate(field, _corners(finite, fr, fc))
 
 
 def extract_path(
@@ -177,8 +191,9 @@ def extract_path(
         for _ in range(cap):
             if T[r, c] == 0.0 or length >= max_length:
                 break
-            here = _bilinear(T, finite, fr, fc)
-            vx, vy = _bilinear(gx, finite, fr, fc), _bilinear(gy, finite, fr, fc)
+            corners = _corners(finite, fr, fc)  # shared by T and its gradient here
+            here = _interpolate(T, corners)
+            vx, vy = _interpolate(gx, corners), _interpolate(gy, corners)
             norm = float(np.hypot(vx, vy))
             moved = False
             if np.isfinite(norm) and norm > 1e-12:

@@ -101,6 +101,22 @@ def test_poisson_validation_and_unbatched():
 # --------------------------------------------------------------------------- masses
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_the_frontier_on_the_explored_box_equals_the_full_grid_definition(seed):
+    # explored patches anywhere, touching the border too, in a batch of two maps
+    g = torch.Generator().manual_seed(seed)
+    explored = torch.zeros(2, 24, 20, dtype=torch.bool)
+    for b in range(2):
+        for _ in range(3):
+            r, c = (int(v) for v in torch.randint(0, 20, (2,), generator=g))
+            explored[b, r : r + 6, max(c - 2, 0) : c + 5] = True
+    occupied = explored & (torch.rand(explored.shape, generator=g) < 0.2)
+    full = explored & ~occupied & dilate_square(~explored, 1)  # the definition, whole grid
+    assert torch.equal(frontier_mask(explored, occupied), full)
+    none = torch.zeros(1, 5, 5, dtype=torch.bool)
+    assert not frontier_mask(none, none).any()
+
+
 def test_frontier_mass_and_proximity():
     explored = torch.zeros(1, 6, 6, dtype=torch.bool)
     explored[0, 1:5, 1:4] = True

@@ -75,6 +75,21 @@ def test_two_views_accumulate_additively_and_agree_on_their_overlap():
     assert to_wall.max() <= 0.15
 
 
+def test_an_update_with_the_callers_projection_equals_one_that_projects_itself():
+    poses = [(0.0, 0.0, 0.0), (0.6, 0.4, 0.7)]
+    own, given = GRField(), GRField()
+    for pose in poses:
+        obs = obs_of(pose)
+        a = own.update(obs)
+        depth = obs["depth"][..., 0].float()  # (1, n, n)
+        b = given.update(obs, projection=given.project(depth, obs["pose"]))
+        assert torch.equal(a.waypoints, b.waypoints)
+    assert torch.equal(own.map_state, given.map_state)
+    points, valid = given.project(depth, obs["pose"])
+    with pytest.raises(ValueError, match="projection must be"):
+        given.update(obs, projection=(points[:, :-1], valid[:, :-1]))  # another frame's
+
+
 def test_bad_depth_is_masked_and_never_propagated():
     obs = obs_of((0.0, 0.0, 0.3))
     clean = GRField()

@@ -87,7 +87,6 @@ from vla_gr.agent.navigator.sight import nearest_goal_in_sight
 from vla_gr.core.gr_field.config import GRFieldConfig
 from vla_gr.core.gr_field.mapping import points_to_cells
 from vla_gr.core.gr_field.planning import GRField
-from vla_gr.geometry.camera import project_depth
 from vla_gr.geometry.pose2d import lookahead_target, map_to_robot, wrap_angle
 
 logger = logging.getLogger(__name__)
@@ -284,7 +283,7 @@ class Navigator:
         out = self.field.update(
             {"depth": depth, "pose": pose}, like, goal_gate=gate,
             frontier_value=None if value is None else torch.from_numpy(value)[None],
-            frontier_keep=cfg.room_search.keep,
+            frontier_keep=cfg.room_search.keep, projection=self._project()[2:],
         )  # fmt: skip
         self.last_output = out
         maps = self.field.maps
@@ -496,11 +495,7 @@ class Navigator:
         if self._projected is not None:
             return self._projected
         depth, pose = self._tick_frame  # (1, H, W), (1, 3)
-        fcfg = self.field_config
-        points, valid = project_depth(
-            depth, fcfg.hfov_deg, pose, fcfg.camera_height, fcfg.camera_forward_offset,
-            fcfg.min_depth, fcfg.max_depth,
-        )  # (1, N, 3), (1, N)  # fmt: skip
+        points, valid = self.field.project(depth, pose)  # (1, N, 3), (1, N)
         cells, inside = points_to_cells(points[..., :2], self.field.grid)  # (1, N, 2), (1, N)
         self._projected = (cells, valid & inside, points, valid)
         return self._projected

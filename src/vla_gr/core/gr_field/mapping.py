@@ -167,9 +167,10 @@ def update_map(
     obstacle = obstacle_band(points, valid, floor_height, max_height)  # (B, N)
     floor = valid & (z < floor_height)  # (B, N)
     ones = torch.ones_like(z)  # (B, N)
-    _scatter(state, grid, xy, obstacle, OCC_HITS, ones)
-    _scatter(state, grid, xy, floor, FREE_HITS, ones)
-    _scatter(state, grid, xy, valid, POINT_HITS, ones)
+    cells, inside = points_to_cells(xy, grid)  # (B, N, 2), (B, N): once for every layer
+    _scatter_cells(state, cells, obstacle & inside, OCC_HITS, ones)
+    _scatter_cells(state, cells, floor & inside, FREE_HITS, ones)
+    _scatter_cells(state, cells, valid & inside, POINT_HITS, ones)
     if goal_likelihood is not None:
         if goal_likelihood.shape != valid.shape:
             raise ValueError(
@@ -177,7 +178,7 @@ def update_map(
                 f"got {tuple(goal_likelihood.shape)}"
             )
         like = torch.nan_to_num(goal_likelihood.to(state.dtype), nan=0.0).clamp(0.0, 1.0)
-        _scatter(state, grid, xy, valid, GOAL_SUM, like)
+        _scatter_cells(state, cells, valid & inside, GOAL_SUM, like)
     if image_shape is not None:
         cam = pose[:, :2].to(state.dtype) if camera_xy is None else camera_xy.to(state.dtype)
         samples, mask = free_space_rays(

@@ -37,9 +37,22 @@ def frontier_mask(explored: torch.Tensor, occupied: torch.Tensor) -> torch.Tenso
 
     Returns:
         (B, H, W) bool. Cells outside the grid do not count as unexplored.
+
+    Computed on the bounding box of the explored cells grown by one cell (no frontier lies
+    outside it, and every neighbour of an explored cell lies in it), so the answer equals
+    the full-grid one.
     """
-    near_unknown = dilate_square(~explored, 1)  # (B, H, W)
-    return explored & ~occupied & near_unknown
+    out = torch.zeros_like(explored)  # (B, H, W)
+    rows = explored.any(dim=(0, 2)).nonzero().flatten()  # (R,) rows holding explored cells
+    if len(rows) == 0:
+        return out
+    cols = explored.any(dim=(0, 1)).nonzero().flatten()  # (C,)
+    H, W = explored.shape[-2:]
+    r = slice(max(int(rows[0]) - 1, 0), min(int(rows[-1]) + 2, H))
+    c = slice(max(int(cols[0]) - 1, 0), min(int(cols[-1]) + 2, W))
+    seen, occ = explored[:, r, c], occupied[:, r, c]  # (B, h, w) the box
+    out[:, r, c] = seen & ~occ & dilate_square(~seen, 1)
+    return out
 
 
 def dilate_square(mask: torch.Tensor, k: int) -> torch.Tensor:

@@ -221,9 +221,18 @@ class GRField(nn.Module):
             goal = goal.reshape(depth.shape[0], -1)  # (B, H*W)
         return depth, pose, goal
 
+    def project(self, depth: torch.Tensor, pose: torch.Tensor):
+        """Map-frame points (B, N, 3) and their validity (B, N) of ``depth`` (B, H, W) metres
+        seen from ``pose`` (B, 3) through this field's camera: what :meth:`update` maps."""
+        cfg = self.config
+        return project_depth(
+            depth, cfg.hfov_deg, pose, cfg.camera_height, cfg.camera_forward_offset,
+            cfg.min_depth, cfg.max_depth,
+        )  # fmt: skip
+
     def update(
         self, obs: dict, goal_likelihood=None, goal_gate=None, frontier_value=None,
-        frontier_keep: float = 0.5,
+        frontier_keep: float = 0.5, projection=None,
     ) -> GRFieldOutput:  # fmt: skip
         """Integrate one observation per batch element and recompute the field.
 
@@ -238,6 +247,8 @@ class GRField(nn.Module):
                 alike). With no goal, the path leads to the frontier cells worth at least
                 ``frontier_keep`` times the best frontier cell first, and to any frontier
                 cell only when none of those can be reached.
+            projection: :meth:`project` of this ``obs`` when the caller has it already (the
+                navigator projects the frame for its goal votes first), or None.
         """
         cfg = self.config
         depth, pose, goal = self._inputs(obs, goal_likelihood)
@@ -250,10 +261,12 @@ class GRField(nn.Module):
             raise ValueError(
                 f"batch size changed from {self.map_state.shape[0]} to {B}; call reset() first"
             )
-        points, valid = project_depth(
-            depth, cfg.hfov_deg, pose, cfg.camera_height, cfg.camera_forward_offset,
-            cfg.min_depth, cfg.max_depth,
-        )  # (B, N, 3), (B, N)  # fmt: skip
+        points, valid = self.project(depth, pose) if projection is None else projection
+        if points.shape[:2] != valid.shape or valid.shape != (B, depth[0].numel()):
+            raise ValueError(
+                f"projection must be points (B, N, 3) and valid (B, N) with B, N = {B}, "
+                f"{depth[0].numel()}; got {tuple(points.shape)} and {tuple(valid.shape)}"
+            )
         heading = torch.stack([torch.cos(pose[:, 2]), torch.sin(pose[:, 2])], dim=-1)  # (B, 2)
         update_map(
             self.map_state, self.grid, points, valid, pose, goal,
