@@ -43,16 +43,26 @@ def frontier_mask(explored: torch.Tensor, occupied: torch.Tensor) -> torch.Tenso
     the full-grid one.
     """
     out = torch.zeros_like(explored)  # (B, H, W)
-    rows = explored.any(dim=(0, 2)).nonzero().flatten()  # (R,) rows holding explored cells
-    if len(rows) == 0:
+    box = bounding_box(explored, 1)
+    if box is None:
         return out
-    cols = explored.any(dim=(0, 1)).nonzero().flatten()  # (C,)
-    H, W = explored.shape[-2:]
-    r = slice(max(int(rows[0]) - 1, 0), min(int(rows[-1]) + 2, H))
-    c = slice(max(int(cols[0]) - 1, 0), min(int(cols[-1]) + 2, W))
-    seen, occ = explored[:, r, c], occupied[:, r, c]  # (B, h, w) the box
-    out[:, r, c] = seen & ~occ & dilate_square(~seen, 1)
+    seen, occ = explored[:, box[0], box[1]], occupied[:, box[0], box[1]]  # (B, h, w) the box
+    out[:, box[0], box[1]] = seen & ~occ & dilate_square(~seen, 1)
     return out
+
+
+def bounding_box(mask: torch.Tensor, margin: int) -> tuple[slice, slice] | None:
+    """(rows, cols) slices of the box holding every True cell of ``mask`` (B, H, W) in any
+    map, grown by ``margin`` cells and clipped to the grid; None when no cell is True."""
+    rows = mask.any(dim=(0, 2)).nonzero().flatten()  # (R,) rows holding a True cell
+    if len(rows) == 0:
+        return None
+    cols = mask.any(dim=(0, 1)).nonzero().flatten()  # (C,)
+    H, W = mask.shape[-2:]
+    return (
+        slice(max(int(rows[0]) - margin, 0), min(int(rows[-1]) + margin + 1, H)),
+        slice(max(int(cols[0]) - margin, 0), min(int(cols[-1]) + margin + 1, W)),
+    )
 
 
 def dilate_square(mask: torch.Tensor, k: int) -> torch.Tensor:
@@ -77,13 +87,10 @@ def grow_through(seed: torch.Tensor, passable: torch.Tensor, steps: int) -> torc
     """
     if steps < 0:
         raise ValueError(f"steps must be >= 0, got {steps}")
-    rows = seed.any(dim=(0, 2)).nonzero().flatten()  # (R,) rows holding a seed in any map
-    if len(rows) == 0 or steps == 0:
+    box = bounding_box(seed, steps + 1) if steps > 0 else None
+    if box is None:
         return seed.clone()
-    cols = seed.any(dim=(0, 1)).nonzero().flatten()  # (C,)
-    H, W = seed.shape[-2:]
-    r = slice(max(int(rows[0]) - steps - 1, 0), min(int(rows[-1]) + steps + 2, H))
-    c = slice(max(int(cols[0]) - steps - 1, 0), min(int(cols[-1]) + steps + 2, W))
+    r, c = box
     grown, ok = seed[:, r, c], passable[:, r, c]  # (B, h, w) the box
     for _ in range(steps):
         grown = dilate_square(grown, 1) & ok  # (B, h, w)
