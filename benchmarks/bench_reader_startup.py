@@ -42,6 +42,26 @@ def build(every_step: bool):
     return time.perf_counter() - t0, table
 
 
+def median_table(times: dict[str, list[float]], head: str) -> tuple[dict[str, float], list[str]]:
+    """The median seconds of each way's runs, and the rows of a markdown table of them (its
+    first column headed ``head``)."""
+    med = {name: float(np.median(v)) for name, v in times.items()}
+    rows = [f"| {head} | median s | runs |", "|---|---|---|"]
+    rows += [
+        f"| {n} | {med[n]:.2f} | {' / '.join(f'{x:.2f}' for x in v)} |" for n, v in times.items()
+    ]
+    return med, rows
+
+
+def write_results(out: Path, lines: list[str], payload: dict) -> None:
+    """Print ``lines`` and write them to ``<out>.md``, ``payload`` to ``<out>.json``."""
+    text = "\n".join(lines) + "\n"
+    print(text)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.with_suffix(".md").write_text(text, encoding="utf-8")
+    out.with_suffix(".json").write_text(json.dumps(payload, indent=2), encoding="utf-8")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=5)
@@ -65,7 +85,7 @@ def main() -> None:
         same = a.objects == b.objects and a.rooms == b.rooms and a.known == b.known
         if not (same and a.compounds == b.compounds and a._nouns == b._nouns):
             raise SystemExit("the two word tables differ")
-    med = {name: float(np.median(v)) for name, v in times.items()}
+    med, table = median_table(times, "folding")
     ratio = med["every step"] / med["ASCII short way"]
     machine = describe_machine(calibrate=False)
     lines = [
@@ -76,19 +96,13 @@ def main() -> None:
         f"Machine: {machine['cpu']}, {machine['cores']} cores. WordNet loaded once first: "
         f"{load:.2f} s (not in the table). Both ways build equal tables.",
         "",
-        "| folding | median s | runs |",
-        "|---|---|---|",
+        *table,
+        "",
+        f"Ratio (every step / short way): **{ratio:.2f}x**.",
     ]
-    for name, v in times.items():
-        lines.append(f"| {name} | {med[name]:.2f} | {' / '.join(f'{x:.2f}' for x in v)} |")
-    lines += ["", f"Ratio (every step / short way): **{ratio:.2f}x**."]
-    text = "\n".join(lines) + "\n"
-    print(text)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.with_suffix(".md").write_text(text, encoding="utf-8")
     payload = {"machine": machine, "wordnet_load_s": load, "seconds": times, "median_s": med,
                "ratio": ratio}  # fmt: skip
-    args.out.with_suffix(".json").write_text(json.dumps(payload, indent=2), encoding="utf-8")
+    write_results(args.out, lines, payload)
 
 
 if __name__ == "__main__":

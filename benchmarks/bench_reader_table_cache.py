@@ -22,7 +22,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-import numpy as np
+from bench_reader_startup import median_table, write_results
 
 from vla_gr.machine import describe_machine
 
@@ -71,7 +71,7 @@ def main() -> None:
                 digests.add(result["digest"])
             if len(digests) != 1:
                 raise SystemExit("the built and the cached tables differ")
-    med = {way: float(np.median(v)) for way, v in times.items()}
+    med, table = median_table(times, "table")
     ratio = med["built"] / med["cached"]
     machine = describe_machine(calibrate=False)
     lines = [
@@ -82,21 +82,12 @@ def main() -> None:
         f"Machine: {machine['cpu']}, {machine['cores']} cores. Each figure is one fresh "
         "process's own time for its table (imports excluded); both ways give the same table.",
         "",
-        "| table | median s | runs |",
-        "|---|---|---|",
-        *(
-            f"| {way} | {med[way]:.2f} | {', '.join(f'{t:.2f}' for t in times[way])} |"
-            for way in WAYS
-        ),
+        *table,
         "",
         f"Read from disk: **{ratio:.2f}x** faster than built from WordNet.",
     ]
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.with_suffix(".md").write_text("\n".join(lines) + "\n")
-    args.out.with_suffix(".json").write_text(
-        json.dumps({"machine": machine, "seconds": times, "median": med, "ratio": ratio}, indent=1)
-    )
-    print("\n".join(lines))
+    payload = {"machine": machine, "seconds": times, "median_s": med, "ratio": ratio}
+    write_results(args.out, lines, payload)
 
 
 if __name__ == "__main__":
