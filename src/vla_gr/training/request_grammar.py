@@ -14,7 +14,8 @@ together, one a stop on the way to the other), and words that ask for nothing.
 Words come from the reader's own tables (:mod:`vla_gr.agent.reading.vocabulary`): the class
 names and the WordNet words for them, weighted towards the common ones, and WordNet's other
 artefacts, colours and rooms for what no table holds. No request set written to measure the
-reader is read here.
+reader is read here; its phrases (verbs, politeness, joins of two goals, ...) are data in
+:mod:`vla_gr.training.request_phrases`.
 """
 
 from __future__ import annotations
@@ -26,167 +27,41 @@ import numpy as np
 from vla_gr.agent.reading.reader import display_name
 from vla_gr.agent.reading.tagger import TAGS
 from vla_gr.agent.reading.text import normalise_request, request_words
-from vla_gr.agent.reading.vocabulary import COLOUR_WORDS, WordTable, _words
+from vla_gr.agent.reading.vocabulary import COLOUR_WORDS, WordTable
+from vla_gr.training.request_phrases import (
+    AFTER,
+    ANCHOR_FIRST,
+    AND,
+    BOTH,
+    BOTH_AND,
+    CHAT,
+    CONTEXT,
+    DEPTH_SHARE,
+    DETERMINERS,
+    DO_NOT,
+    DOING,
+    EACH,
+    FRONTED_COMMANDS,
+    GIBBERISH_LETTERS,
+    KEEP_AWAY,
+    NEAR,
+    NEGATION_WORDS,
+    NEGATIONS,
+    OBJECT_CONTEXT,
+    ON_THE_WAY,
+    OTHER_PLACES,
+    PLACE_PREP,
+    POLITE_AFTER,
+    POLITE_BEFORE,
+    QUESTIONS,
+    ROOM_PREP,
+    SECOND,
+    SIZE,
+    VERBS,
+    WISHES,
+)
 
 __all__ = ["LabelledRequest", "RequestGrammar"]
-
-_VERBS = (
-    "find", "go to", "take me to", "bring me to", "navigate to", "head to", "head over to",
-    "walk to", "walk over to", "move to", "drive to", "get to", "get me to", "locate",
-    "look for", "search for", "show me", "lead me to", "guide me to", "approach", "visit",
-    "go find", "go over to", "make your way to", "travel to", "roll over to", "seek out",
-    "track down", "get over to", "proceed to", "steer to", "go and find", "come to",
-    "park yourself at", "meet me at", "wait at", "stop at", "be at", "go stand by",
-    "park next to", "wait by", "pull up to", "go sit at", "station yourself at",
-)  # fmt: skip
-#: Clauses about what the user does there (any verb): no field in them.
-_DOING = (
-    "i think it's {w}", "time to {w} around", "i want to {w} it", "it needs {w}",
-    "i'm going to {w}", "we should {w} it", "something about {w}", "it's {w} again",
-    "i left the {w} there", "the {w} is there", "i need to {w}", "while i {w}",
-    "it looks {w}", "it seems {w}", "it's so {w}", "it is {w} now", "looks {w} to me",
-    "the one i mean", "i think", "the one i want", "you know the one",
-)  # fmt: skip
-#: Context that names some other object (no goal): "let's watch a movie", "grab my keys".
-_OBJECT_CONTEXT = (
-    "let's watch a {o}", "i left my {o} there", "grab the {o} on the way", "my {o} is broken",
-    "i want to use the {o}", "bring the {o}", "i need my {o}", "i dropped a {o} near it",
-    "the {o} is somewhere there", "i was looking at the {o}", "mind the {o}",
-    "i want to sit at the {o}", "i'm by the {o}",
-)  # fmt: skip
-_POLITE_BEFORE = (
-    "please", "pls", "hey robot,", "robot,", "ok,", "okay so", "hi,", "could you", "can you",
-    "would you", "would you please", "can you please", "i need you to", "now", "alright,",
-    "hello, could you", "excuse me, can you", "robot:", "hey, can you", "quick,",
-)  # fmt: skip
-_POLITE_AFTER = (
-    "please", "pls", "thanks", "thank you", "now", "asap", "if you can", "for me",
-    "when you can", "thx", "right away", "cheers", "quickly", "and stop there",
-    "and stop", "and wait there", "and stay there",
-)  # fmt: skip
-_FRONTED_COMMANDS = (
-    "go there", "go there and stop", "take me there", "go", "find it", "go to it",
-    "head there", "that one", "please", "pls", "drive there", "move there", "get there",
-    "stop next to it", "that's where i want to go", "can you get there?", "go now",
-)  # fmt: skip
-_WISHES = (
-    "i want to go to", "i'd like to go to", "i need to get to", "i need", "i want",
-    "i'm looking for", "i am looking for", "i would like to go to", "i wanna go to",
-    "i have to get to", "i must get to", "we need to go to", "let's go to",
-)  # fmt: skip
-_QUESTIONS = (
-    ("where is", "?"), ("where's", "?"), ("can you find", "?"), ("could you find", "?"),
-    ("do you see", "?"), ("can you take me to", "?"), ("could you bring me to", "?"),
-    ("will you go to", "?"), ("can we go to", "?"), ("is there", "you can take me to?"),
-    ("where can i find", "?"), ("could you lead me to", "?"), ("any chance you can find", "?"),
-)  # fmt: skip
-#: Sentences around a request that ask for nothing themselves (category words in them are
-#: no goal: "I want to watch tv" does not send the robot to the tv).
-_CONTEXT = (
-    "i'm tired.", "i want to sit down.", "my back hurts.", "i need a rest.", "it's late.",
-    "i dropped my keys.", "i lost my phone somewhere.", "i'm cold.", "i feel sick.",
-    "we have guests coming.", "i need to water the plants.", "the tv is too loud.",
-    "i want to watch tv.", "i just woke up.", "i'm back from work.", "time for a nap.",
-    "my feet hurt.", "i can't see well.", "the light is off.", "it's so hot in here.",
-    "let's get moving.", "quick question.", "one more thing.", "ok listen.",
-    "i need to use the bathroom.", "dinner is ready soon.", "i left my glasses somewhere.",
-    "the game starts soon.", "i want to read.", "mom is waiting.", "i need a break.",
-    "after lunch i want to relax.", "good morning.", "hello robot.", "thanks for earlier.",
-)  # fmt: skip
-_CHAT = (
-    "hello", "hi there", "what time is it?", "how are you?", "thanks", "thank you so much",
-    "never mind", "stop", "wait", "what can you do?", "good night", "are you there?",
-    "tell me a joke", "who are you?", "ok", "cancel that", "nothing, sorry", "bye",
-    "what's the weather like?", "i'm hungry", "turn on the lights", "play some music",
-)  # fmt: skip
-_NEAR = (
-    "next to", "near", "beside", "by", "close to", "right next to", "right by", "alongside",
-    "adjacent to", "near to", "just by", "at", "nearby", "against", "by the side of",
-)  # fmt: skip
-_ROOM_PREP = ("in", "in the", "inside the", "in my", "in our", "within the", "over in the")
-#: How a place that is no room of the house is said ("on the balcony", "out in the yard").
-_PLACE_PREP = _ROOM_PREP + ("on the", "out on the", "out in the", "down in the",
-                            "up in the", "on my")  # fmt: skip
-#: WordNet roots of the places no room table holds: other rooms, outbuildings, floors,
-#: porches, balconies, patios, gardens, yards.
-_OTHER_PLACES = ("room.n.01", "outbuilding.n.01", "floor.n.02", "area.n.05", "porch.n.01",
-                 "balcony.n.01", "garden.n.01", "yard.n.02")  # fmt: skip
-_DETERMINERS = ("the", "the", "the", "a", "my", "that", "our", "this", "")
-_SIZE = ("big", "small", "little", "large", "old", "new", "comfy", "wooden", "tall", "round")
-#: Shapes that say the anchor before the goal, or refer back to it ("beside it").
-_ANCHOR_FIRST = (
-    "next to the {a} there's a {n}", "near the {a} is the {n}", "by the {a} , the {n}",
-    "somewhere near the {a} is a {n} ;", "the {a} has a {n} next to it",
-    "{a} - the {n} next to it", "the {n} with the {a} next to it", "the {n} , {a} next to it",
-    "the {n} that has a {a} beside it", "there's a {a} and a {n} beside it",
-    "the {n} with a {a} by it", "i'm at the {a} - the {n} beside it",
-)  # fmt: skip
-_NEGATIONS = (
-    ("the {n} that isn't {c}", "c"), ("the {n} that is not {c}", "c"),
-    ("not the {c} {n}", "c"), ("any {n} except the {c} one", "c"),
-    ("a {n} but not the {c} one", "c"), ("the {n} which isn't {c}", "c"),
-    ("any {n} other than the {c} one", "c"), ("the {n} not in the {r}", "r"),
-    ("the {n} that's not in the {r}", "r"), ("a {n} outside the {r}", "r"),
-    ("the {n} that isn't next to the {a}", "a"), ("the {n} not near the {a}", "a"),
-    ("a {n} without the {a} next to it", "a"), ("no, not the {c} {n}", "c"),
-    ("the {n}, but not in the {r}", "r"), ("any {n} apart from the {c} one", "c"),
-    ("the {n} that is never {c}", "c"), ("the {n} that's not {c}", "c"),
-    ("anything but the {n}", "n"), ("anything except the {c} {n}", "c"),
-    ("any {n} but the {c} one", "c"), ("everything except the {n}", "n"),
-    ("not the {n} in the {r}", "r"), ("a {n} , just not the {c} one", "c"),
-)  # fmt: skip
-_NEGATION_WORDS = _words(
-    "anything everything just isn't not except but other than outside without no apart from never"
-)
-#: Two goals joined by "and" alone: "the bed and the toilet", "the sofa as well as the tv".
-_AND = ("and", "and the", "and also", "and also the", "as well as", "plus", "and a", ", and",
-        "and my", "& the", "and then the")  # fmt: skip
-_SECOND = (
-    "and then", "then", "and after that", ", then", ". then", "and then go to", "after that",
-    ", and then", "and next", ", next", "and also", "and", ", after that", "and later",
-    ". then go to", ". after that, find", ". next, go to", ". then find", ". now", ". and",
-    ". afterwards, go to", "; then", ". after that go to", "followed by", ", followed by",
-    "and afterwards",
-)  # fmt: skip
-#: Two goals asked for together: "both the bed and the sofa", "... - go to each".
-_BOTH = ("both", "both the", "visit both", "go to both", "check both", "i need both",
-         "find both", "take me to both", "see both", "i want both", "go see both")  # fmt: skip
-_BOTH_AND = ("and", "and the", "and also", "as well as", "plus", "&", "and also the")
-_EACH = ("- go to each", ", each of them", "one after the other", "in that order", ", both",
-         "go to each", "visit each", "both please", "- both of them", ", one then the other",
-         "in any order", "each one", ", all two")  # fmt: skip
-#: A stop on the way to another goal: "stop by the plant on your way to the toilet".
-_ON_THE_WAY = (
-    ("stop by", "on your way to"), ("swing by", "on the way to"), ("pass by", "before going to"),
-    ("visit", "before you go to"), ("check", "on your way over to"), ("drop by", "then go on to"),
-    ("stop at", "on the way to"), ("pop by", "en route to"), ("go past", "and end up at"),
-    ("call at", "before heading to"), ("swing past", "and then carry on to"),
-)  # fmt: skip
-#: One goal after another, the first said in a clause: "after the bed, go to the toilet".
-_AFTER = (
-    ("after", ", go to"), ("after the visit to", ", head to"), ("once you've been to", ", find"),
-    ("when you're done at", ", go to"), ("start at", "and finish at"), ("first", ", then"),
-    ("begin with", ", then go to"), ("after you reach", "go on to"), ("once at", ", move to"),
-    ("when you get to", ", continue to"), ("from", "go on to"), ("once you find", ", find"),
-)  # fmt: skip
-_GIBBERISH_LETTERS = "abcdefghijklmnopqrstuvwxyz"
-#: How a request is turned into its opposite before its verb: "don't go to ...".
-_DO_NOT = (
-    "don't", "do not", "dont", "never", "please don't", "please do not", "no need to",
-    "you don't need to", "you don't have to", "there's no need to", "i don't want you to",
-    "i don't need you to", "you shouldn't", "you should not", "don't bother to",
-    "do not ever", "no, don't", "we don't need to", "stop trying to", "try not to",
-    "i told you not to", "you mustn't", "let's not", "i'd rather you didn't",
-)  # fmt: skip
-#: Verbs that say to keep away from, or to leave out, what follows them.
-_KEEP_AWAY = (
-    "stay away from", "keep away from", "keep clear of", "steer clear of", "avoid",
-    "don't bother with", "forget about", "never mind", "skip", "ignore", "keep off",
-    "don't touch", "don't go near", "do not go near", "don't come near", "don't bump into",
-    "don't knock over", "stay out of the way of", "leave alone", "don't block",
-)  # fmt: skip
-#: How often a class is said by its name (-1) or by a word 0, 1, 2, 3+ levels below its senses.
-_DEPTH_SHARE = {-1: 0.45, 0: 0.25, 1: 0.18, 2: 0.08, 3: 0.04}
 
 
 @dataclass(frozen=True)
@@ -225,7 +100,7 @@ class RequestGrammar:
             if table.name_in(w.split(), "colour") is None
         )  # fmt: skip
         self.unknown_rooms = sorted(
-            w for root in _OTHER_PLACES for w in self._wordnet_words(root, named, table)
+            w for root in OTHER_PLACES for w in self._wordnet_words(root, named, table)
             if table.name_in(w.split(), "room") is None
             and table.name_in(w.split(), "category") is None
         )  # fmt: skip
@@ -235,7 +110,7 @@ class RequestGrammar:
         generic = {w for root in ("room.n.01", "area.n.05", "floor.n.02")
                    for w in self._wordnet_words(root, named, table, max_depth=0)}  # fmt: skip
         self.common_places = sorted(
-            w for root in _OTHER_PLACES
+            w for root in OTHER_PLACES
             for w in self._wordnet_words(root, named, table, max_depth=1)
             if w in self._other_places and w not in generic
         )  # fmt: skip
@@ -258,7 +133,7 @@ class RequestGrammar:
     @staticmethod
     def _words_by_class(table: dict, words: WordTable) -> dict[str, list[tuple[str, float]]]:
         """{class: [(phrase, weight)]}: per class, the name half the time, then the WordNet
-        words by how near the class's own senses they are (:data:`_DEPTH_SHARE`)."""
+        words by how near the class's own senses they are (:data:`DEPTH_SHARE`)."""
         groups: dict[str, dict[int, list[str]]] = {}
         for phrase, name in table.items():
             if name.how == "joined":  # "livingroom": read, not said by the grammar
@@ -268,9 +143,9 @@ class RequestGrammar:
             groups.setdefault(name.name, {}).setdefault(level, []).append(text)
         out: dict[str, list[tuple[str, float]]] = {}
         for name, by_level in groups.items():
-            total = sum(_DEPTH_SHARE[level] for level in by_level)
+            total = sum(DEPTH_SHARE[level] for level in by_level)
             out[name] = [
-                (text, _DEPTH_SHARE[level] / total / len(texts))
+                (text, DEPTH_SHARE[level] / total / len(texts))
                 for level, texts in by_level.items()
                 for text in texts
             ]
@@ -338,16 +213,16 @@ class RequestGrammar:
     # -- one description of a goal ---------------------------------------------------------
     def _goal_phrase(self, rng, noun, colour, room, anchor, goal_tag="GOAL") -> list:
         """Segments [(text, tag)] describing the goal in one of many shapes."""
-        det = self._pick(rng, _DETERMINERS)
+        det = self._pick(rng, DETERMINERS)
         seg: list[tuple[str, str]] = []
         size = []  # a word saying what it is like: "big", "potted", "spotted"
         if rng.random() < 0.14:
-            size = [(self._pick(rng, _SIZE if rng.random() < 0.5 else self.adjectives), "O")]
+            size = [(self._pick(rng, SIZE if rng.random() < 0.5 else self.adjectives), "O")]
         colour_tag = "COLOUR" if goal_tag == "GOAL" else goal_tag
         room_tag = "ROOM" if goal_tag == "GOAL" else goal_tag
         anchor_tag = "ANCHOR" if goal_tag == "GOAL" else goal_tag
         near = [
-            (self._pick(rng, _NEAR), "O"),
+            (self._pick(rng, NEAR), "O"),
             (self._pick(rng, ("the", "the", "a", "my", "")), "O"),
         ]
         anchor_seg = []
@@ -358,7 +233,7 @@ class RequestGrammar:
             anchor_seg = near + anchor_colour + [(anchor, anchor_tag)]
         room_seg = []
         if room is not None:
-            prep = _PLACE_PREP if room in self._other_places else _ROOM_PREP
+            prep = PLACE_PREP if room in self._other_places else ROOM_PREP
             room_seg = [(self._pick(rng, prep), "O"), (room, room_tag)]
         shape = rng.random()
         if colour is not None and shape < 0.12:  # relative clause or appositive for colour
@@ -391,7 +266,7 @@ class RequestGrammar:
             rest = [anchor_seg]
             room_seg = []
         elif anchor is not None and shape < 0.38:  # the anchor said first or after "it"
-            form = self._pick(rng, _ANCHOR_FIRST)
+            form = self._pick(rng, ANCHOR_FIRST)
             colour_seg = [(colour, colour_tag)] if colour else []
             seg = []
             for piece in form.split(" "):
@@ -439,16 +314,16 @@ class RequestGrammar:
         chair", "please stay away from the couch in the kitchen", "no need to find the bed"."""
         goal = self.goal_description(rng)
         if rng.random() < 0.55:
-            text = f"{self._pick(rng, _DO_NOT)} {self._pick(rng, _VERBS)} {goal}"
+            text = f"{self._pick(rng, DO_NOT)} {self._pick(rng, VERBS)} {goal}"
         else:
-            text = f"{self._pick(rng, _KEEP_AWAY)} {goal}"
+            text = f"{self._pick(rng, KEEP_AWAY)} {goal}"
         if rng.random() < 0.3:
             text = f"{self.opener(rng)} {text}"
         return text
 
     def opener(self, rng: np.random.Generator) -> str:
         """Words that open a message without asking anything: "hey robot,", "good morning."."""
-        openers = [p for p in _POLITE_BEFORE if "you" not in p and p not in ("please", "pls")]
+        openers = [p for p in POLITE_BEFORE if "you" not in p and p not in ("please", "pls")]
         return self._pick(
             rng,
             openers
@@ -501,33 +376,33 @@ class RequestGrammar:
     def _frame(self, rng, phrase: list, room: str | None) -> list:
         style = rng.random()
         if style < 0.38:
-            seg = [(self._pick(rng, _VERBS), "O")] + phrase
+            seg = [(self._pick(rng, VERBS), "O")] + phrase
         elif style < 0.55:  # the goal said first
             seg = phrase + [(self._pick(rng, (" -", ",", ".", "", ":", "...")), "O")]
-            seg += [(self._pick(rng, _FRONTED_COMMANDS), "O")] if rng.random() < 0.8 else []
+            seg += [(self._pick(rng, FRONTED_COMMANDS), "O")] if rng.random() < 0.8 else []
         elif style < 0.67:
-            seg = [(self._pick(rng, _WISHES), "O")] + phrase
+            seg = [(self._pick(rng, WISHES), "O")] + phrase
         elif style < 0.80:
-            question = self._pick(rng, _QUESTIONS)
+            question = self._pick(rng, QUESTIONS)
             seg = [(question[0], "O")] + phrase + [(question[1], "O")]
         elif style < 0.88 and room is not None:  # the room said first
             lead = self._pick(rng, ("go into the", "in the", "head to the", "enter the", "",
                                     "the", "over in the", "in my"))  # fmt: skip
             tail = self._pick(rng, ("and find", ", find", "- find", "and go to", ", there's",
                                     ",", ":", "-", ".", ", the", "- the"))  # fmt: skip
-            inner = [s for s in phrase if s != (room, "ROOM") and s[0] not in _ROOM_PREP]
+            inner = [s for s in phrase if s != (room, "ROOM") and s[0] not in ROOM_PREP]
             seg = [(lead, "O"), (room, "ROOM"), (tail, "O")] + inner
         else:
-            seg = [(self._pick(rng, _VERBS), "O")] + phrase
+            seg = [(self._pick(rng, VERBS), "O")] + phrase
         if rng.random() < 0.35:
-            seg = [(self._pick(rng, _POLITE_BEFORE), "O")] + seg
+            seg = [(self._pick(rng, POLITE_BEFORE), "O")] + seg
         if rng.random() < 0.25:
-            seg = seg + [(self._pick(rng, _POLITE_AFTER), "O")]
+            seg = seg + [(self._pick(rng, POLITE_AFTER), "O")]
         if rng.random() < 0.2:
-            context = [(self._pick(rng, _CONTEXT), "O")]
+            context = [(self._pick(rng, CONTEXT), "O")]
             seg = context + seg if rng.random() < 0.7 else seg + [(".", "O")] + context
         if rng.random() < 0.12:  # a sentence about some other object: no goal in it
-            other = _OBJECT_CONTEXT[int(rng.integers(len(_OBJECT_CONTEXT)))]
+            other = OBJECT_CONTEXT[int(rng.integers(len(OBJECT_CONTEXT)))]
             other = other.format(o=self._pick(rng, self.unknown_objects))
             link = self._pick(rng, (".", "-", ",", ";", "so"))
             seg = (
@@ -536,7 +411,7 @@ class RequestGrammar:
                 else (seg + [(link, "O"), (other, "O")])
             )
         if rng.random() < 0.15:  # what the user will do there, with any word
-            doing = self._pick(rng, _DOING).format(w=self._pick(rng, self.fillers))
+            doing = self._pick(rng, DOING).format(w=self._pick(rng, self.fillers))
             link = self._pick(rng, (",", "-", ".", "so", "because", "and"))
             seg = (
                 seg + [(link, "O"), (doing, "O")]
@@ -549,11 +424,11 @@ class RequestGrammar:
         """Words that ask for nothing: chat, mashed keys, unrelated words, empty."""
         style = rng.random()
         if style < 0.4:
-            return [(self._pick(rng, _CHAT), "O")]
+            return [(self._pick(rng, CHAT), "O")]
         if style < 0.7:
             n = int(rng.integers(1, 4))
             words = [
-                "".join(self._pick(rng, _GIBBERISH_LETTERS) for _ in range(rng.integers(2, 9)))
+                "".join(self._pick(rng, GIBBERISH_LETTERS) for _ in range(rng.integers(2, 9)))
                 for _ in range(n)
             ]
             return [(" ".join(words), "O")]
@@ -563,17 +438,17 @@ class RequestGrammar:
         return [("", "O")]
 
     def _negation(self, rng, noun: str, goal: str) -> list:
-        form, needs = self._pick(rng, _NEGATIONS)
+        form, needs = self._pick(rng, NEGATIONS)
         colour = self._colour(rng, self._pick(rng, list(COLOUR_WORDS)))
         room = self._room(rng, self._pick(rng, self.rooms))
         anchor = self._noun(rng, self._pick(rng, [c for c in self.categories if c != goal]))
-        seg: list[tuple[str, str]] = [(self._pick(rng, _VERBS), "O")]
+        seg: list[tuple[str, str]] = [(self._pick(rng, VERBS), "O")]
         tags = {"n": (noun, "GOAL"), "c": (colour, "COLOUR"), "r": (room, "ROOM"),
                 "a": (anchor, "ANCHOR")}  # fmt: skip
         for piece in form.split(" "):
             if piece.startswith("{") and piece.endswith("}"):
                 seg.append(tags[piece[1:-1]])
-            elif piece.strip(",") in _NEGATION_WORDS:
+            elif piece.strip(",") in NEGATION_WORDS:
                 seg.append((piece, "NEG"))
             else:
                 seg.append((piece, "O"))
@@ -595,26 +470,26 @@ class RequestGrammar:
         )
         form = rng.random()
         if form < 0.15:
-            seg = [(self._pick(rng, _BOTH), "O")] + first
-            seg += [(self._pick(rng, _BOTH_AND), "O")] + second
-            seg += [(self._pick(rng, _EACH), "O")] if rng.random() < 0.5 else []
+            seg = [(self._pick(rng, BOTH), "O")] + first
+            seg += [(self._pick(rng, BOTH_AND), "O")] + second
+            seg += [(self._pick(rng, EACH), "O")] if rng.random() < 0.5 else []
         elif form < 0.3:
-            stop, way = self._pick(rng, _ON_THE_WAY)
+            stop, way = self._pick(rng, ON_THE_WAY)
             seg = [(stop, "O")] + first + [(way, "O")] + second
         elif form < 0.42:
-            before, then = self._pick(rng, _AFTER)
+            before, then = self._pick(rng, AFTER)
             seg = [(before, "O")] + first + [(then, "O")] + second
         else:
             lead = self._pick(rng, ("first", "go to", "first go to", "find", ""))
-            lead = self._pick(rng, _VERBS) if rng.random() < 0.4 else lead
-            link = [(self._pick(rng, _AND if rng.random() < 0.4 else _SECOND), "O")]
+            lead = self._pick(rng, VERBS) if rng.random() < 0.4 else lead
+            link = [(self._pick(rng, AND if rng.random() < 0.4 else SECOND), "O")]
             verb = self._pick(rng, ("", "go to", "find", "the"))
             verb = [(verb, "O")] if rng.random() < 0.5 else []
             seg = [(lead, "O")] + first + link + verb + second
         if rng.random() < 0.3:
-            seg = [(self._pick(rng, _POLITE_BEFORE), "O")] + seg
+            seg = [(self._pick(rng, POLITE_BEFORE), "O")] + seg
         if rng.random() < 0.2:
-            seg = seg + [(self._pick(rng, _POLITE_AFTER), "O")]
+            seg = seg + [(self._pick(rng, POLITE_AFTER), "O")]
         return seg
 
     # -- surface: words, typing slips --------------------------------------------------------
