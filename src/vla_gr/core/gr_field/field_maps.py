@@ -1,4 +1,5 @@
-"""The allocentric maps of one GR field update, typed: :class:`FieldMaps`.
+"""What one GR field update gives: its allocentric maps, typed (:class:`FieldMaps`), and the
+planner's output of the tick (:class:`GRFieldOutput`).
 
 :meth:`vla_gr.core.gr_field.planning.GRField.update` builds one per tick and
 :attr:`GRField.maps <vla_gr.core.gr_field.planning.GRField.maps>` exposes the last one. Every
@@ -8,6 +9,7 @@ metric (0, 0)). Readers only read: the map itself is edited through ``GRField``'
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -15,7 +17,7 @@ import torch
 
 from vla_gr.core.gr_field.physics import conformal_log_factor, solve_poisson
 
-__all__ = ["FieldMaps"]
+__all__ = ["FieldMaps", "GRFieldOutput"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -59,3 +61,23 @@ class FieldMaps:
         """(B, H, W) potential of ``rho`` rescaled to [0, 1] per map; solved once, on first read."""
         phi = solve_poisson(self.rho, self.cell_size, self.G)  # (B, H, W)
         return conformal_log_factor(phi, torch.zeros_like(phi), 1.0, 0.0)  # (B, H, W)
+
+
+@dataclass
+class GRFieldOutput:
+    """What one planner tick produces.
+
+    ``features`` are computed from this tick's maps on first access and then kept: a planner
+    that only follows the waypoints (the navigator) never pays for them.
+    """
+
+    make_features: Callable[[], torch.Tensor] = field(repr=False)
+    waypoints: torch.Tensor  # (B, K, 2) robot frame (forward, left), metres; 0 when no path
+    has_path: torch.Tensor  # (B,) bool
+    goal_seen: torch.Tensor  # (B,) bool: the path leads to the goal, not to the frontier
+    distance: torch.Tensor  # (B,) geodesic distance (metric units) from the robot; inf if none
+
+    @cached_property
+    def features(self) -> torch.Tensor:
+        """(B, C, h, w) egocentric, heading-aligned, channels ``FEATURE_NAMES``."""
+        return self.make_features()

@@ -29,9 +29,6 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Callable
-from dataclasses import dataclass, field
-from functools import cached_property
 
 import numpy as np
 import torch
@@ -39,7 +36,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from vla_gr.core.gr_field.config import FEATURE_NAMES, GRFieldConfig
-from vla_gr.core.gr_field.field_maps import FieldMaps
+from vla_gr.core.gr_field.field_maps import FieldMaps, GRFieldOutput
 from vla_gr.core.gr_field.mapping import (
     OCC_HITS,
     centred_grid,
@@ -92,26 +89,6 @@ def snap_start(travel: np.ndarray, xy: np.ndarray, cell_size: float, radius: flo
     dist = np.linalg.norm(centres - xy, axis=-1)  # (M,)
     best = int(np.argmin(dist))
     return centres[best] if dist[best] <= radius else None
-
-
-@dataclass
-class GRFieldOutput:
-    """What one planner tick produces.
-
-    ``features`` are computed from this tick's maps on first access and then kept: a planner
-    that only follows the waypoints (the navigator) never pays for them.
-    """
-
-    make_features: Callable[[], torch.Tensor] = field(repr=False)
-    waypoints: torch.Tensor  # (B, K, 2) robot frame (forward, left), metres; 0 when no path
-    has_path: torch.Tensor  # (B,) bool
-    goal_seen: torch.Tensor  # (B,) bool: the path leads to the goal, not to the frontier
-    distance: torch.Tensor  # (B,) geodesic distance (metric units) from the robot; inf if none
-
-    @cached_property
-    def features(self) -> torch.Tensor:
-        """(B, C, h, w) egocentric, heading-aligned, channels ``FEATURE_NAMES``."""
-        return self.make_features()
 
 
 class GRField(nn.Module):
