@@ -295,7 +295,7 @@ class Navigator:
         self.committed = bool(goal_cells.any())
         robot_xy = maps.robot_xy[0].numpy()  # (2,) from the grid corner
         distance, nearest = nearest_goal_in_sight(
-            goal_cells, robot_xy, self.field.maps.occupied[0].numpy(), self.field.cell_size,
+            goal_cells, robot_xy, maps.occupied[0].numpy(), self.field.cell_size,
             self.config.approach.goal_halo_cells,
         )  # fmt: skip
         votes = float(self.goal_votes.max()) if self.goal_votes.any() else 0.0
