@@ -13,7 +13,8 @@ then without it on just those episodes, and put the two together::
     python benchmarks/rerun_fired.py merge runs/on runs/off
 
 ``episodes`` writes the specs of the episodes in which S2 rejected a goal for ``--reason``
-(the rows' ``rejected_goals``; "any" for any reason), with ``--declared`` only those that ended
+(the rows' ``rejected_goals``; "any" for any reason; "room_map_kept" where the room map kept a
+goal the room check's last ticks would have rejected), with ``--declared`` only those that ended
 in that declared outcome (``not_found``: where ``navigator.not_found.second_look`` acts);
 ``merge`` prints SR, SPL and collision rate of the run with the rule and of the same episodes
 without it (the first run's rows, those of the second in their place), and the episodes won
@@ -36,11 +37,14 @@ def fired_specs(run_dir: Path, reason: str, declared: str | None = None) -> list
     rows = read_rows(run_dir / "episodes.jsonl")
     if not rows:
         raise SystemExit(f"{run_dir}/episodes.jsonl holds no episodes")
+    if reason == "room_map_kept":  # not a rejection: the room map kept a goal
+        fired = [r for r in rows if r.get("agent", {}).get("room_map_kept", 0) > 0]
+    else:
+        fired = [
+            r for r in rows if any(reason in ("any", g.get("reason")) for g in r["rejected_goals"])
+        ]
     return [
-        EpisodeSpec.from_dict(r["spec"])
-        for r in rows
-        if any(reason in ("any", g.get("reason")) for g in r["rejected_goals"])
-        and declared in (None, r.get("declared"))
+        EpisodeSpec.from_dict(r["spec"]) for r in fired if declared in (None, r.get("declared"))
     ]
 
 
@@ -70,7 +74,9 @@ def main() -> None:
     sub = parser.add_subparsers(dest="command", required=True)
     ep = sub.add_parser("episodes", help="specs of the episodes where the rule fired")
     ep.add_argument("run_dir", type=Path)
-    ep.add_argument("--reason", required=True, help="a rejection reason (unreachable, ...; any)")
+    ep.add_argument(
+        "--reason", required=True, help="a rejection reason (unreachable, ...; any; room_map_kept)"
+    )
     ep.add_argument("--declared", help="only episodes ending in this declared outcome (not_found)")
     ep.add_argument("--out", type=Path, required=True)
     mg = sub.add_parser("merge", help="the run with the rule against the same without it")

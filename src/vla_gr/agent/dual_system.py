@@ -113,14 +113,16 @@ class GroundedDualSystem:
     def episode_summary(self) -> dict:
         """What S2 concluded this episode: the highest goal confidence, the last mode, the
         goals it rejected (how many, and each one's reason, tick and position in the
-        episode-start frame), the times it was trapped, the evidence behind its STOP
-        request ({} without one)."""
+        episode-start frame), the times it was trapped, the ticks the room map kept a goal
+        the room check's last ticks would have rejected, the evidence behind its STOP request
+        ({} without one)."""
         summary = {
             "goal_confidence": round(float(self.max_goal_confidence), 4),
             "last_mode": None if self.plan is None else self.plan.mode,
             "rejected_goals": int(self.navigator.rejections),
             "rejections": [dict(r) for r in self.navigator.rejection_log],
             "traps": int(self.navigator.traps),
+            "room_map_kept": int(self.navigator.checks.room_map_kept),
             "stop_evidence": dict(self.navigator.stop_evidence),
         }
         return summary

@@ -43,6 +43,49 @@ def test_the_room_check_rejects_a_goal_in_another_room_and_stops_in_the_right_on
     assert plans[1].stop and nav.rejections == 0
 
 
+def test_the_room_map_keeps_a_goal_where_all_the_robot_saw_says_the_instructed_room():
+    """Two doubtful ticks at the goal reject it unless the room map, from every tick that
+    typed the robot's cell, believes the instructed room there at least ``room_map_keep``."""
+    near, far = (ROOM[1] - 0.6, 0.0, 0.0), (ROOM[1] - 1.4, 0.0, 0.0)  # 0.8 m apart
+    kitchen, bathroom = np.array([0.9, 0.1]), np.array([0.1, 0.9])
+    search = {"enabled": True, "categories": ["chair"], "room_types": ["kitchen", "bathroom"],
+              "presence": [[0.5, 0.5]], "room_share": [0.5, 0.5]}  # fmt: skip
+
+    def run(before, keep, room="kitchen"):
+        """6 ticks 1.4 m from the goal (beyond the stop distance) typing the place as
+        ``before``, then ticks at 0.6 m whose room match is 0.1 (the classifier doubts the
+        kitchen there): the first of them judges the goal."""
+        nav = make_nav(look_around={"angle": 0.0}, approach={"stop_distance": 0.8},
+                       goal_checks={"room_reject_threshold": 0.5, "room_ticks": 1,
+                                    "room_map_keep": keep},
+                       room_search=search)  # fmt: skip
+        nav.set_search_goal("chair", room)
+        plans = []
+        for pose, match, probs in [(far, 0.9, before)] * 6 + [(near, 0.1, bathroom)] * 2:
+            depth = room_depth(pose)
+            obs = {"depth": depth, "pose": np.array(pose, np.float32)}
+            plans.append(nav.plan(obs, wall_goal(depth), 1.0, match, room_probs=probs))
+        return nav, plans
+
+    # the map believes the kitchen there ((6 * 0.9 + 0.1) / 7 = 0.786): the goal is kept
+    nav, plans = run(kitchen, keep=0.5)
+    assert plans[6].stop and nav.rejections == 0
+    assert nav.stop_evidence["room_belief"] == pytest.approx(5.5 / 7, abs=1e-4)
+    assert nav.checks.room_map_kept == 2  # both ticks at the goal: the map overruled them
+    # above the map's belief: rejected as without the map
+    nav, plans = run(kitchen, keep=0.8)
+    assert not plans[6].stop and nav.rejection_log[0]["reason"] == "room"
+    # off (0): the last ticks alone decide
+    nav, plans = run(kitchen, keep=0.0)
+    assert not plans[-1].stop and nav.rejections == 1 and nav.checks.room_map_kept == 0
+    # the map says bathroom too ((6 * 0.1 + 0.1) / 7 = 0.1): rejected
+    nav, plans = run(bathroom, keep=0.5)
+    assert not plans[-1].stop and nav.rejections == 1
+    # no room named: the check has nothing to judge, the map no belief
+    nav, plans = run(kitchen, keep=0.5, room=None)
+    assert nav.room_belief is None
+
+
 def test_the_object_check_rejects_a_goal_of_another_category_and_ignores_ticks_without_evidence():
     near = (ROOM[1] - 0.6, 0.0, 0.0)
     like = wall_goal(room_depth(near))
@@ -143,6 +186,7 @@ def test_an_anchor_read_on_the_goal_itself_is_not_its_anchor_when_the_anchor_mus
     [
         ({"room_reject_threshold": 1.5}, "room_reject_threshold"),
         ({"room_ticks": 0}, "room_ticks"),
+        ({"room_map_keep": 1.2}, "room_map_keep"),
         ({"object_reject_threshold": -0.1}, "object_reject_threshold"),
         ({"object_ticks": 0}, "object_ticks"),
         ({"relation_distance": -1.0}, "relation_distance"),

@@ -49,6 +49,24 @@ def test_a_cell_is_worth_the_prior_under_its_room_posterior():
     assert search.value() is None
 
 
+def test_the_room_belief_of_a_cell_is_the_mean_of_the_instructed_rooms_evidence_there():
+    search = _search(radius=0.2)
+    free = np.ones((20, 20), bool)
+    search.observe(np.array([0.8, 0.2]), (3, 3), free)
+    search.observe(np.array([0.4, 0.6]), (3, 3), free)
+    assert search.room_belief((3, 3)) is None  # no goal: no instructed room
+    search.set_goal("toilet", None)
+    assert search.room_belief((3, 3)) is None  # a goal without a room
+    search.set_goal("toilet", "bathroom")
+    assert search.room_belief((3, 3)) == pytest.approx(0.4)  # (0.2 + 0.6) / 2
+    search.set_goal("chair", "kitchen")
+    assert search.room_belief((3, 3)) == pytest.approx(0.6)
+    assert search.room_belief((15, 15)) is None  # no tick typed it
+    assert search.room_belief((25, 3)) is None  # off the map
+    search.set_goal("chair", "garage")  # a room type the classifier has not: nothing to judge
+    assert search.room_belief((3, 3)) is None
+
+
 def test_the_section_is_checked_and_the_overrides_name_its_keys():
     with pytest.raises(ValueError, match="room_search.keep"):
         RoomSearchConfig(keep=1.5)

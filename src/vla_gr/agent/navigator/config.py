@@ -104,6 +104,9 @@ class GoalChecksConfig:
     # last room_ticks ticks that the robot is in a room of the instructed type is below this
     room_reject_threshold: float = 0.0  # 0 = off
     room_ticks: int = 3
+    # ... unless the room map (room_search: every tick that typed the robot's cell, not only the
+    # last few) gives the instructed type at least this probability there; 0 = off
+    room_map_keep: float = 0.0
     # every goal: near a confirmed goal, reject it when the mean probability, over the last
     # object_ticks ticks that saw goal pixels, that those pixels show an object of the
     # instructed category is below this
@@ -125,7 +128,7 @@ class GoalChecksConfig:
             ">= 0": ("relation_distance",),
             "int >= 1": ("room_ticks", "object_ticks"),
             "int >= 0": ("anchor_ticks",),
-            "[0, 1]": ("room_reject_threshold", "object_reject_threshold"),
+            "[0, 1]": ("room_reject_threshold", "room_map_keep", "object_reject_threshold"),
         })  # fmt: skip
 
 

@@ -5,7 +5,10 @@ and asks it, near a confirmed goal, whether the goal must be rejected (settings:
 ``model.navigator.goal_checks``, :class:`~vla_gr.agent.navigator.config.GoalChecksConfig`):
 
 - room: the mean over the last ``room_ticks`` ticks of the probability that the robot stands
-  in a room of the instructed type is below ``room_reject_threshold``;
+  in a room of the instructed type is below ``room_reject_threshold``, and (with
+  ``room_map_keep``) the room map's belief in that type at the robot's cell, from every tick
+  that typed it (:meth:`~vla_gr.agent.navigator.room_search.RoomSearch.room_belief`), is below
+  ``room_map_keep`` too: a few ticks of a doubtful view do not outweigh all the robot saw there;
 - object: the mean over the last ``object_ticks`` ticks with evidence of the probability that
   the goal pixels show the instructed category is below ``object_reject_threshold``;
 - relation: no anchor cell (anchor pixels landed in it on ``anchor_ticks`` ticks, by default
@@ -58,6 +61,7 @@ class GoalChecks:
         self.object_matches: deque[float] = deque(maxlen=self.config.object_ticks)
         self.anchor_votes = np.zeros(self.shape, np.int32)  # (H, W) ticks with anchor pixels
         self.has_anchor = False  # the instruction names a relation's anchor (one was given)
+        self.room_map_kept = 0  # ticks the room map kept a goal the last ticks would reject
 
     def observe(self, room_match: float, object_match: float | None) -> None:
         """One tick's room probability and object probability (None: no evidence)."""
@@ -74,9 +78,16 @@ class GoalChecks:
         """The committed goal was given up: its object evidence goes with it."""
         self.object_matches.clear()
 
-    def wrong_room(self) -> bool:
-        threshold = self.config.room_reject_threshold
-        return threshold > 0.0 and float(np.mean(self.room_matches)) < threshold
+    def wrong_room(self, room_belief: float | None = None) -> bool:
+        """The room check fails (``room_belief``: the room map's belief in the instructed
+        type at the robot's cell, None without one)."""
+        threshold, keep = self.config.room_reject_threshold, self.config.room_map_keep
+        if not (threshold > 0.0 and float(np.mean(self.room_matches)) < threshold):
+            return False
+        if keep > 0.0 and room_belief is not None and room_belief >= keep:
+            self.room_map_kept += 1  # the map overruled the last ticks
+            return False
+        return True
 
     def wrong_object(self) -> bool:
         threshold = self.config.object_reject_threshold
@@ -126,21 +137,30 @@ class GoalChecks:
         found = self.anchor_distance(goal, goal_votes)
         return found is not None and found > distance + 1e-9
 
-    def failed(self, goal: Callable[[], np.ndarray], goal_votes: np.ndarray) -> str | None:
+    def failed(
+        self,
+        goal: Callable[[], np.ndarray],
+        goal_votes: np.ndarray,
+        room_belief: float | None = None,
+    ) -> str | None:
         """The first check the goal near the robot fails ("room", "object", "relation"), or
         None; ``goal()`` gives its cells (H, W) (computed only when the relation check needs
-        them), ``goal_votes`` (H, W) the ticks with goal pixels per cell."""
-        if self.wrong_room():
+        them), ``goal_votes`` (H, W) the ticks with goal pixels per cell, ``room_belief`` the
+        room map's belief in the instructed room at the robot's cell (None: none)."""
+        if self.wrong_room(room_belief):
             return "room"
         if self.wrong_object():
             return "object"
         return "relation" if self.no_anchor_near(goal(), goal_votes) else None
 
-    def evidence(self, goal: np.ndarray | None, goal_votes: np.ndarray) -> dict:
+    def evidence(
+        self, goal: np.ndarray | None, goal_votes: np.ndarray, room_belief: float | None = None
+    ) -> dict:
         """The checks' inputs at a STOP (None where a check had none)."""
         distance = None if goal is None else self.anchor_distance(goal, goal_votes)
         return {
             "room_match": round(float(np.mean(self.room_matches)), 4),
+            "room_belief": None if room_belief is None else round(room_belief, 4),
             "object_match": (
                 round(float(np.mean(self.object_matches)), 4) if self.object_matches else None
             ),

@@ -196,6 +196,7 @@ class Navigator:
         self.ever_seen_goal = False
         self.tick_goal_pixels = 0  # goal pixels of this tick that landed on the map
         self.stop_evidence: dict[str, float] = {}  # what S2 saw on the tick it asked to STOP
+        self.room_belief: float | None = None  # RoomSearch.room_belief at the robot, this tick
         self.checks = GoalChecks(
             self.config.goal_checks, self.config.confirmation.ticks, shape, self.field.cell_size
         )
@@ -287,10 +288,13 @@ class Navigator:
         )  # fmt: skip
         self.last_output = out
         maps = self.field.maps
+        row, col = self.field.grid.world_to_cell(pose[0, :2].numpy())  # the robot's cell
         if self.room_search is not None and room_probs is not None:  # typed for the next tick
-            row, col = self.field.grid.world_to_cell(pose[0, :2].numpy())  # the robot's cell
             free = (maps.explored[0] & ~maps.occupied[0]).numpy()  # (H, W)
             self.room_search.observe(np.asarray(room_probs), (int(row), int(col)), free)
+        self.room_belief = (  # the instructed room's, where the robot stands (goal_checks)
+            None if self.room_search is None else self.room_search.room_belief((int(row), int(col)))
+        )
         goal_cells = maps.goal[0].numpy()  # (H, W) confirmed goal cells
         self.committed = bool(goal_cells.any())
         robot_xy = maps.robot_xy[0].numpy()  # (2,) from the grid corner
@@ -341,7 +345,9 @@ class Navigator:
         )
         near = distance <= (app.stop_distance_at_end if at_end else app.stop_distance)
         if self.committed and near:
-            failed = self.checks.failed(lambda: self._goal_component(nearest), self.goal_votes)
+            failed = self.checks.failed(
+                lambda: self._goal_component(nearest), self.goal_votes, self.room_belief
+            )
             if failed is not None:
                 return self._abandon_goal(nearest, failed)
             verified = float(goal_visible) >= app.stop_visible_threshold
@@ -470,7 +476,9 @@ class Navigator:
             "total_votes": int(votes.sum()),
             "distance": round(float(distance), 3),
             **self.checks.evidence(
-                None if nearest is None else self._goal_component(nearest), self.goal_votes
+                None if nearest is None else self._goal_component(nearest),
+                self.goal_votes,
+                self.room_belief,
             ),
             "tick": int(self.ticks),
         }

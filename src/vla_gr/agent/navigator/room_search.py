@@ -47,11 +47,13 @@ class RoomSearch:
         self.count = np.zeros(shape, np.float32)  # (H, W) ticks that typed each cell
         self.room_values: np.ndarray | None = None  # (R,) for this episode's goal
         self.unknown_value = 0.0
+        self.room_index: int | None = None  # the instructed room's type (None: not named)
 
     def set_goal(self, category: str | None, room: str | None) -> None:
         """The goal of this episode (class names as read; None: not named). An unknown
         category (none in the learned table) leaves every cell worth the same."""
         c = self.config
+        self.room_index = c.room_types.index(room) if room in c.room_types else None
         if category not in c.categories:
             self.room_values = None
             return
@@ -77,6 +79,17 @@ class RoomSearch:
         reached = grow_through(torch.from_numpy(seed), passable, steps)[0].numpy()  # (H, W)
         self.evidence[:, reached] += np.asarray(room_probs, np.float32)[:, None]
         self.count[reached] += 1.0
+
+    def room_belief(self, cell: tuple[int, int]) -> float | None:
+        """The mean probability, over every tick that typed ``cell`` (row, col), that it lies in
+        a room of the instructed type; None when no room is named or no tick typed the cell."""
+        row, col = cell
+        H, W = self.count.shape
+        if self.room_index is None or not (0 <= row < H and 0 <= col < W):
+            return None
+        if self.count[row, col] == 0:
+            return None
+        return float(self.evidence[self.room_index, row, col] / self.count[row, col])
 
     def value(self) -> np.ndarray | None:
         """(H, W) float32 search value of every cell for this episode's goal; None when the
