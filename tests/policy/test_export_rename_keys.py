@@ -79,7 +79,7 @@ def test_rename_keys_keeps_every_setting_through_the_mapping(old_checkpoint, tmp
                   "min_intent")
     }  # fmt: skip
     added |= {"perception.engine", "navigator.not_found.steps", "navigator.not_found.new_area",
-              "navigator.not_found.second_look"}  # fmt: skip
+              "navigator.not_found.second_look", "navigator.goal_checks.room_map_keep"}  # fmt: skip
     added |= {
         f"navigator.room_search.{k}"
         for k in ("enabled", "radius", "keep", "categories", "room_types", "presence",
@@ -88,13 +88,14 @@ def test_rename_keys_keeps_every_setting_through_the_mapping(old_checkpoint, tmp
     assert reached | added == set(resolved)  # every other setting comes from an old one
     # the shipped checkpoint resolves to the same config but for its trained reader, the
     # engine of its perception (ONNX Runtime; the old one ran PyTorch, the default), its
-    # room search and the second look of its "not found"
+    # room search, the second look of its "not found" and the room map of its room check
     shipped = checkpoint_model_config(read_checkpoint(SHIPPED).config_yaml, SHIPPED)
     assert config.perception.engine == "torch"
     config.instruction_reader = shipped.instruction_reader
     config.perception = shipped.perception
     config.navigator.room_search = shipped.navigator.room_search  # its room_prior stage
     config.navigator.not_found.second_look = shipped.navigator.not_found.second_look  # and so
+    config.navigator.goal_checks.room_map_keep = shipped.navigator.goal_checks.room_map_keep
     assert config == shipped
     # the records: what was renamed and dropped; the earlier ones by their new names
     state = written.state
