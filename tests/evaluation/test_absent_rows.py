@@ -51,6 +51,19 @@ def test_eval_counts_absent_episodes_apart_and_a_normal_not_found_as_a_failure(
     assert (out / "episode_0000_not_found_topdown.png").is_file()  # pictured without a goal
 
 
+def test_a_run_of_absent_episodes_alone_writes_its_report(tmp_path, monkeypatch):
+    file = save_episodes(tmp_path / "absent.jsonl", [sample_absent_episode("val", 0, num_rooms=1)])
+    monkeypatch.setitem(
+        AGENTS, "declares", lambda cfg, env: PolicyAgent(DeclaresAfter("not_found", 2))
+    )
+    out = tmp_path / "run"
+    args = [f"output_dir={out}", *FAST, "agent=declares", f"episodes={file}",
+            "env.max_episode_steps=5", "env.image_size=16"]  # fmt: skip
+    assert run_from_cli("config_debug", args) == 0
+    report = (out / "report.md").read_text()
+    assert "(no normal episode)" in report and "## Absent objects" in report
+
+
 def test_a_stop_in_an_absent_episode_is_a_false_stop_named_by_what_it_was_next_to():
     from vla_gr.data.collect import make_env
     from vla_gr.evaluation.runner import run_episode

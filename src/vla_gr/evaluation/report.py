@@ -218,7 +218,8 @@ def write_report(out_dir: Path, metrics: dict, rows: Sequence[dict], pictures: d
         "",
     ]
     for key in BREAKDOWNS:
-        lines += [f"### {key}", "", format_table(metrics["breakdowns"][key]), ""]
+        groups = metrics["breakdowns"][key]  # {} on a run of absent-object episodes alone
+        lines += [f"### {key}", "", format_table(groups) if groups else "(no normal episode)", ""]
     lines += ["## Failure causes", "", "| cause | episodes |", "|---|---|"]
     lines += [f"| {c} | {n} |" for c, n in metrics["failure_causes"].items()]
     wrong = metrics.get("wrong_stops") or {}
