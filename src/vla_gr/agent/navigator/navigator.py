@@ -57,10 +57,7 @@ obstacles keep sending the robot into the same gap): the way ahead is closed for
 obstacle that is never forgotten, or, with ``traps.rejects_goal``, a committed goal is
 rejected instead.
 
-Map hygiene, every tick (:mod:`vla_gr.agent.navigator.map_edits`, ``map_edits``): unseen cells
-within ``map_edits.visited_clear_radius`` of the robot count as seen (frontiers in the camera's
-blind spots stop pulling the robot back and forth), and obstacle cells with a few hits that
-free space outvotes are forgotten (``map_edits.noise_*``).
+Map hygiene, every tick: :mod:`vla_gr.agent.navigator.map_edits` (``map_edits``).
 Durations are in control steps and become ticks through ``plan_every``.
 """
 
