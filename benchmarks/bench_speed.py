@@ -7,7 +7,8 @@ throughput of the same checkpoint on the same episodes, and whether the decision
 
 The reference is a git commit (checked out once into a worktree under ``--worktrees``) or a
 folder holding a ``src/`` tree. A relative ``--checkpoint`` is each code's own (the folder of
-that path in its tree: the reference runs the checkpoint as it was at its commit). Each repeat
+that path in its tree: the reference runs the checkpoint as it was at its commit);
+``--today-checkpoint`` gives today's code another one (a latency-budget setting). Each repeat
 runs both codes in fresh processes, alternating which goes first, with one torch thread: the
 agent on ``--episodes`` episodes of ``--split`` from ``--first``
 (``bench_agent_latency.measure``: the tick is all of S2's work for a step, reading, perception,
@@ -101,24 +102,26 @@ def checkpoint_of(src: Path, checkpoint: Path) -> Path:
     return checkpoint if checkpoint.is_absolute() else src.parent / checkpoint
 
 
-def run_agent(src: Path, args) -> dict:
-    """Latency samples (ms) per part and per-episode outcomes/actions of the code in ``src``."""
+def run_agent(src: Path, checkpoint: Path, args) -> dict:
+    """Latency samples (ms) per part and per-episode outcomes/actions of the code in ``src``
+    running ``checkpoint``."""
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "agent.json"
         code = _CHILD.format(
-            bench=str(ROOT), checkpoint=str(checkpoint_of(src, args.checkpoint)), split=args.split,
+            bench=str(ROOT), checkpoint=str(checkpoint), split=args.split,
             first=args.first, episodes=args.episodes, out=str(out),
         )  # fmt: skip
         subprocess.run([sys.executable, "-c", code], env=_env(src), check=True, cwd=REPO)
         return json.loads(out.read_text())
 
 
-def run_eval(src: Path, args) -> float:
-    """Episodes per minute of ``vla-gr eval`` (2 workers) with the code in ``src``."""
+def run_eval(src: Path, checkpoint: Path, args) -> float:
+    """Episodes per minute of ``vla-gr eval`` (2 workers) of the code in ``src`` running
+    ``checkpoint``."""
     with tempfile.TemporaryDirectory() as tmp:
         command = [
             sys.executable, "-m", "vla_gr.cli", "eval",
-            f"checkpoint={checkpoint_of(src, args.checkpoint)}",
+            f"checkpoint={checkpoint}",
             f"split={args.split}", f"first_episode={args.first}",
             f"num_episodes={args.eval_episodes}", "workers=2", f"output_dir={tmp}/eval",
             "eval.progress=false",
@@ -193,6 +196,10 @@ def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--reference", required=True, help="a commit, or a folder with src/")
     parser.add_argument("--checkpoint", type=Path, default=Path("checkpoints/vla_gr_cpu"))
+    parser.add_argument(
+        "--today-checkpoint", type=Path, default=None,
+        help="today's code runs this one instead (e.g. with a latency-budget setting)",
+    )  # fmt: skip
     parser.add_argument("--episodes", type=int, default=10)
     parser.add_argument("--first", type=int, default=100)
     parser.add_argument("--split", default="val")
@@ -206,17 +213,20 @@ def main(argv: list[str] | None = None) -> dict:
     from vla_gr.machine import describe_machine, machine_line
 
     codes = {"reference": source_tree(args.reference, args.worktrees), "today": REPO / "src"}
+    checkpoints = {name: checkpoint_of(src, args.checkpoint) for name, src in codes.items()}
+    if args.today_checkpoint is not None:
+        checkpoints["today"] = args.today_checkpoint.resolve()
     runs: dict[str, dict] = {name: {"latency": [], "eval": [], "episodes": None} for name in codes}
     for repeat in range(args.repeats):
         order = list(codes) if repeat % 2 == 0 else list(reversed(codes))
         for name in order:
             logger.info("repeat %d: %s agent", repeat + 1, name)
-            got = run_agent(codes[name], args)
+            got = run_agent(codes[name], checkpoints[name], args)
             runs[name]["latency"].append(quantiles(got["samples"]))
             runs[name]["episodes"] = got["episodes"]
         for name in order if args.eval_episodes > 0 else ():
             logger.info("repeat %d: %s eval", repeat + 1, name)
-            runs[name]["eval"].append(run_eval(codes[name], args))
+            runs[name]["eval"].append(run_eval(codes[name], checkpoints[name], args))
     result = {
         name: {"latency": summarise(r["latency"]), "eval_episodes_per_minute": r["eval"],
                "success": float(np.mean([e["success"] for e in r["episodes"]]))}
@@ -224,17 +234,20 @@ def main(argv: list[str] | None = None) -> dict:
     }  # fmt: skip
     result["decisions"] = decisions(runs["reference"]["episodes"], runs["today"]["episodes"])
     result["meta"] = {
-        "reference": args.reference, "checkpoint": str(args.checkpoint), "split": args.split,
+        "reference": args.reference, "checkpoint": str(args.checkpoint),
+        "today_checkpoint": None if args.today_checkpoint is None else str(args.today_checkpoint),
+        "split": args.split,
         "first": args.first, "episodes": args.episodes, "repeats": args.repeats,
         "eval_episodes": args.eval_episodes, "machine": describe_machine(),
     }  # fmt: skip
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.with_suffix(".json").write_text(json.dumps(result, indent=2) + "\n")
     d = result["decisions"]
+    today = "" if args.today_checkpoint is None else f" --today-checkpoint {args.today_checkpoint}"
     text = (
         f"# Today's code against `{args.reference}`, side by side, one thread\n\n"
         f"`python benchmarks/bench_speed.py --reference {args.reference} --checkpoint "
-        f"{args.checkpoint} --episodes {args.episodes} --first {args.first} --split "
+        f"{args.checkpoint}{today} --episodes {args.episodes} --first {args.first} --split "
         f"{args.split} --repeats {args.repeats} --eval-episodes {args.eval_episodes}`\n\n"
         f"{machine_line(result['meta']['machine'])}\n\n{table(result)}\n\n"
         f"Success on the {args.episodes} episodes: reference {result['reference']['success']:.2f}, "

@@ -50,6 +50,11 @@ def test_the_fired_episodes_and_the_run_without_the_rule(tmp_path):
     assert [s.episode_id for s in specs] == ["val-000000", "val-000001", "val-000003"]
     assert len(bench.fired_specs(on, "any")) == 4
     rows = [json.loads(line) for line in (on / "episodes.jsonl").read_text().splitlines()]
+    rows[2]["agent"], rows[3]["agent"] = {"room_map_kept": 3}, {"room_map_kept": 0}
+    _write(tmp_path / "kept", rows)  # the room map kept a goal in episode 2 only
+    kept = bench.fired_specs(tmp_path / "kept", "room_map_kept")
+    assert [s.episode_id for s in kept] == ["val-000002"]
+    rows = [json.loads(line) for line in (on / "episodes.jsonl").read_text().splitlines()]
     rows[1]["declared"], rows[2]["declared"] = "not_found", "not_found"
     (tmp_path / "declared").mkdir()
     (tmp_path / "declared" / "episodes.jsonl").write_text("\n".join(map(json.dumps, rows)))
