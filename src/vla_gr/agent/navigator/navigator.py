@@ -285,13 +285,12 @@ class Navigator:
         )  # fmt: skip
         self.last_output = out
         maps = self.field.maps
-        row, col = self.field.grid.world_to_cell(pose[0, :2].numpy())  # the robot's cell
+        cell = tuple(int(v) for v in self.field.grid.world_to_cell(pose[0, :2].numpy()))
         if self.room_search is not None and room_probs is not None:  # typed for the next tick
             free = (maps.explored[0] & ~maps.occupied[0]).numpy()  # (H, W)
-            self.room_search.observe(np.asarray(room_probs), (int(row), int(col)), free)
-        self.room_belief = (  # the instructed room's, where the robot stands (goal_checks)
-            None if self.room_search is None else self.room_search.room_belief((int(row), int(col)))
-        )
+            self.room_search.observe(np.asarray(room_probs), cell, free)
+        # the instructed room's, where the robot stands (goal_checks)
+        self.room_belief = None if self.room_search is None else self.room_search.room_belief(cell)
         goal_cells = maps.goal[0].numpy()  # (H, W) confirmed goal cells
         self.committed = bool(goal_cells.any())
         robot_xy = maps.robot_xy[0].numpy()  # (2,) from the grid corner

@@ -58,8 +58,8 @@ class RoomSearch:
             self.room_values = None
             return
         values = np.asarray(c.presence[c.categories.index(category)], np.float64)  # (R,)
-        if room is not None and room in c.room_types:
-            values = values * (np.arange(len(values)) == c.room_types.index(room))
+        if self.room_index is not None:
+            values = values * (np.arange(len(values)) == self.room_index)
         self.room_values = values
         self.unknown_value = float(np.dot(c.room_share, values))
 
@@ -68,10 +68,10 @@ class RoomSearch:
     ) -> None:
         """One tick: ``room_probs`` (R,) of the room the robot stands in, its cell (row, col),
         ``free`` (H, W) bool seen free cells the evidence may spread through."""
+        if not self._on_map(robot_cell):
+            return
         row, col = robot_cell
         H, W = free.shape
-        if not (0 <= row < H and 0 <= col < W):
-            return
         seed = np.zeros((1, H, W), bool)
         seed[0, row, col] = True
         steps = int(np.ceil(self.config.radius / self.cell_size))
@@ -83,13 +83,14 @@ class RoomSearch:
     def room_belief(self, cell: tuple[int, int]) -> float | None:
         """The mean probability, over every tick that typed ``cell`` (row, col), that it lies in
         a room of the instructed type; None when no room is named or no tick typed the cell."""
-        row, col = cell
+        if self.room_index is None or not self._on_map(cell) or self.count[cell] == 0:
+            return None
+        return float(self.evidence[self.room_index, cell[0], cell[1]] / self.count[cell])
+
+    def _on_map(self, cell: tuple[int, int]) -> bool:
+        """Whether ``cell`` (row, col) lies on the map's grid."""
         H, W = self.count.shape
-        if self.room_index is None or not (0 <= row < H and 0 <= col < W):
-            return None
-        if self.count[row, col] == 0:
-            return None
-        return float(self.evidence[self.room_index, row, col] / self.count[row, col])
+        return 0 <= cell[0] < H and 0 <= cell[1] < W
 
     def value(self) -> np.ndarray | None:
         """(H, W) float32 search value of every cell for this episode's goal; None when the
